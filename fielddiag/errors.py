@@ -1,0 +1,28 @@
+"""Errors a user can cause. The CLI prints their message and exits 1, never a traceback."""
+
+
+class FieldDiagError(Exception):
+    """Base class of every error caused by input the user can fix.
+
+    The message must say what went wrong and what to do about it.
+    """
+
+
+class SessionError(FieldDiagError):
+    """A session file is missing, unreadable, malformed or would be overwritten."""
+
+
+class ChannelNotFoundError(SessionError):
+    """A channel, role or signal asked for is not in the session."""
+
+
+class ImportFormatError(FieldDiagError):
+    """A file being imported is malformed (missing column, bad number, bad time axis...)."""
+
+
+class InsufficientDataError(FieldDiagError):
+    """The recording cannot support the requested answer (too short, too little excitation...)."""
+
+
+class DeviceError(FieldDiagError):
+    """A device could not be opened or spoke a protocol we do not understand."""
