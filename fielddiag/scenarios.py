@@ -243,7 +243,7 @@ def _cases() -> list[Scenario]:
             )
         )
     # Bump stop reached only over a few speed bumps / big compressions.
-    for i, (gap, k, bumps) in enumerate(((0.025, 1.5e5, 6), (0.03, 2.5e5, 8), (0.04, 1.0e5, 4))):
+    for i, (gap, k, bumps) in enumerate(((0.045, 1.5e5, 6), (0.05, 2.5e5, 8), (0.04, 1.0e5, 4))):
         add(
             Scenario(
                 f"bump_stop_{i + 1}",
