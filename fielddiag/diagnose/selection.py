@@ -1,0 +1,158 @@
+"""Choosing between a baseline model and models augmented with candidate effects.
+
+The rule is the same for the vehicle diagnosis and the rig mode: every model is fitted on
+one part of the data and scored on a part it has not seen. An augmented model wins only
+if it lowers the held-out error *significantly* (a paired test over time blocks, which
+stays honest when residuals are correlated in time) and by a margin worth its extra
+parameters, and only if its parameters are physical (not pinned at a bound such as a zero
+friction force or a zero stiffness). Otherwise the simpler model stands: a false alarm is
+as bad as a miss.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+#: Blocks for the paired test on held-out residuals.
+N_BLOCKS = 30
+#: t statistic an improvement must reach (about 3 sigma, one-sided).
+MIN_T = 3.0
+#: Minimum relative reduction of held-out mean-square error per added parameter.
+MIN_GAIN_PER_PARAM = 0.02
+
+
+def nrmse(residual: np.ndarray, reference: np.ndarray) -> float:
+    """rms(residual) / rms(reference - mean)."""
+    ref = np.asarray(reference, float)
+    scale = float(np.sqrt(np.mean((ref - ref.mean()) ** 2)))
+    return float(np.sqrt(np.mean(np.asarray(residual, float) ** 2)) / scale) if scale else np.inf
+
+
+def paired_block_t(
+    residual_a: np.ndarray, residual_b: np.ndarray, n_blocks: int = N_BLOCKS
+) -> float:
+    """t statistic that model b has a smaller mean-square error than model a.
+
+    The held-out residuals (same samples) are cut into ``n_blocks`` contiguous blocks and
+    the per-block log ratios of mean squares, log(MSE_a / MSE_b), are treated as
+    independent samples. Log ratios make the test fair to effects that act in a few
+    events only (a bump stop): their gain is large where they act and nil elsewhere, which
+    in raw differences would look like noise. Positive t favours b.
+    """
+    a = np.asarray(residual_a, float) ** 2
+    b = np.asarray(residual_b, float) ** 2
+    n = min(a.size, b.size)
+    k = max(2, min(n_blocks, n // 50))
+    edges = np.linspace(0, n, k + 1).astype(int)
+    tiny = 1e-300
+    d = np.array(
+        [
+            np.log((a[i:j].mean() + tiny) / (b[i:j].mean() + tiny))
+            for i, j in zip(edges[:-1], edges[1:], strict=True)
+        ]
+    )
+    sd = float(d.std(ddof=1))
+    if sd == 0.0:
+        return np.inf if d.mean() > 0 else 0.0
+    return float(d.mean() / (sd / np.sqrt(k)))
+
+
+@dataclass
+class CandidateFit:
+    """One fitted model and how well it predicts data it was not fitted to.
+
+    ``residual_validation`` holds the held-out residuals (concatenated over sessions, in a
+    fixed order shared by all candidates) for the paired test.
+    """
+
+    effects: tuple[str, ...]
+    values: dict[str, float]
+    std: dict[str, float]
+    nrmse_fit: float
+    nrmse_validation: float
+    residual_validation: np.ndarray = field(repr=False)
+    n_params: int
+    at_bound: tuple[str, ...] = ()
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def mse_validation(self) -> float:
+        return float(np.mean(self.residual_validation**2))
+
+    @property
+    def physical(self) -> bool:
+        return not self.at_bound
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """How a candidate compares with a reference model on held-out data."""
+
+    t: float
+    relative_gain: float  # reduction of held-out MSE, fraction of the reference's
+
+    def beats(self, extra_params: int) -> bool:
+        return self.t >= MIN_T and self.relative_gain >= MIN_GAIN_PER_PARAM * max(1, extra_params)
+
+
+def compare(reference: CandidateFit, candidate: CandidateFit) -> Comparison:
+    """Compare ``candidate`` against ``reference`` on their held-out residuals."""
+    t = paired_block_t(reference.residual_validation, candidate.residual_validation)
+    gain = 1.0 - candidate.mse_validation / reference.mse_validation
+    return Comparison(t, gain)
+
+
+@dataclass
+class Selection:
+    """The outcome: the chosen model and the evidence for it."""
+
+    chosen: CandidateFit
+    baseline: CandidateFit
+    comparison: Comparison | None  # chosen vs baseline (None when the baseline stands)
+    ranking: list[tuple[CandidateFit, Comparison]]  # all candidates vs baseline, best first
+    rejected_unphysical: list[CandidateFit]
+
+
+def select_model(baseline: CandidateFit, candidates: Sequence[CandidateFit]) -> Selection:
+    """Pick the simplest model that predicts held-out data significantly better.
+
+    Single effects are compared with the baseline; a pair of effects must also beat the
+    best single effect it contains. Candidates with a parameter pinned at a bound are
+    unphysical and never chosen.
+    """
+    ranking = sorted(
+        ((c, compare(baseline, c)) for c in candidates), key=lambda cc: cc[0].mse_validation
+    )
+    unphysical = [c for c, _ in ranking if not c.physical]
+    ok = [(c, cmp) for c, cmp in ranking if c.physical]
+    chosen, chosen_cmp = baseline, None
+    singles = [
+        (c, cmp)
+        for c, cmp in ok
+        if len(c.effects) == 1 and cmp.beats(c.n_params - baseline.n_params)
+    ]
+    if singles:
+        chosen, chosen_cmp = singles[0]
+    for c, cmp in ok:
+        if len(c.effects) < 2 or not cmp.beats(c.n_params - baseline.n_params):
+            continue
+        if chosen is baseline:
+            chosen, chosen_cmp = c, cmp
+            break
+        if set(chosen.effects) <= set(c.effects) and compare(chosen, c).beats(
+            c.n_params - chosen.n_params
+        ):
+            chosen, chosen_cmp = c, cmp
+            break
+    return Selection(chosen, baseline, chosen_cmp, ranking, unphysical)
+
+
+def confidence(cmp: Comparison | None, explained_fraction: float) -> float:
+    """A 0..1 confidence from the test statistic and how much of the excess is explained."""
+    if cmp is None:
+        return 0.0
+    sig = 1.0 - np.exp(-max(cmp.t - MIN_T, 0.0) / 3.0)
+    return float(np.clip(0.5 + 0.5 * sig, 0, 1) * np.clip(explained_fraction, 0.0, 1.0))
