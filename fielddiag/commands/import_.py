@@ -6,34 +6,51 @@ import argparse
 from pathlib import Path
 
 from fielddiag.channels import SessionMetadata
-from fielddiag.errors import ImportFormatError
-
-FORMATS = ("csv",)
+from fielddiag.io.formats import FORMATS, detect_format, get_format, import_file, options_from_args
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "import",
-        help="import a CSV (or other) recording into a session",
+        help="import a recording (CSV, PVS, CAN log, MDF4...) into a session",
         description=(
-            "Import a recording into a session file. CSV: one row per sample with a header; "
-            "map columns to roles with --role ROLE=COLUMN (roles: wheel, body, speed, and for "
-            "rig tests force, displacement, acceleration; any other ROLE keeps the column "
-            "under that name)."
+            "Import a recording into a session file. The format is detected from the file "
+            "(--format overrides): "
+            + "; ".join(f"{f.name}: {f.description}" for f in FORMATS.values())
+            + ". CSV: map columns to roles with --role ROLE=COLUMN (roles: wheel, body, "
+            "speed, and for rig tests force, displacement, acceleration; any other ROLE keeps "
+            "the column under that name). CAN logs and MDF4 bus logging: --dbc FILE and "
+            "--signal NAME."
         ),
     )
-    p.add_argument("file", help="file to import")
+    p.add_argument("file", help="file (or PVS folder) to import")
     p.add_argument("-o", "--output", required=True, help="session file to write (.h5)")
     p.add_argument(
         "--format",
         default=None,
-        help=f"file format (default: from the file name; {', '.join(FORMATS)})",
+        help=f"file format (default: detected from the file; {', '.join(FORMATS)})",
     )
-    p.add_argument("--role", action="append", metavar="ROLE=COLUMN", help="map a column to a role")
-    p.add_argument("--time", dest="time_column", metavar="COLUMN", help="column holding time")
-    p.add_argument("--time-unit", default="s", help="unit of the time column: s, ms, us")
-    p.add_argument("--accel-unit", default="m/s2", help="unit of acceleration columns: m/s2 or g")
-    p.add_argument("--speed-unit", default="m/s", help="unit of the speed column: m/s, km/h, mph")
+    p.add_argument("--role", action="append", metavar="ROLE=COLUMN",
+                   help="CSV/MDF4: map a column or channel to a role")
+    p.add_argument("--time", dest="time_column", metavar="COLUMN", help="CSV: column holding time")
+    p.add_argument("--time-unit", default=None,
+                   help="CSV: unit of the time column: s (default), ms, us")
+    p.add_argument("--accel-unit", default=None,
+                   help="CSV: unit of acceleration columns: m/s2 (default) or g")
+    p.add_argument("--speed-unit", default=None,
+                   help="CSV: unit of the speed column: m/s (default), km/h, mph")
+    p.add_argument("--dbc", action="append", metavar="[BUS=]FILE",
+                   help="CAN log/MDF4: DBC to decode CAN frames (repeatable; BUS=FILE binds it "
+                        "to one bus, e.g. can1=radar.dbc)")
+    p.add_argument("--signal", action="append", metavar="NAME",
+                   help="CAN log/MDF4: signal to decode, SIGNAL or MESSAGE.SIGNAL (repeatable; "
+                        "default: vehicle speed and wheel speeds)")
+    p.add_argument("--channel", action="append", metavar="NAME",
+                   help="MDF4: channel to import (repeatable; default: all numeric channels)")
+    p.add_argument("--side", choices=("left", "right"), default=None,
+                   help="PVS: sensor network to import (default: from the file name, or left)")
+    p.add_argument("--vertical-axis", choices=("x", "y", "z", "auto"), default=None,
+                   help="PVS: accelerometer axis that is vertical (default: auto, from gravity)")
     p.add_argument(
         "--added-mass",
         type=float,
@@ -49,22 +66,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def _detect_format(path: Path) -> str:
-    suffix = path.suffix.lower()
-    if suffix in (".csv", ".txt", ".tsv"):
-        return "csv"
-    raise ImportFormatError(
-        f"cannot tell the format of {path.name} from its name; pass --format ({', '.join(FORMATS)})"
-    )
-
-
 def run(args: argparse.Namespace) -> int:
-    from fielddiag.io.csv_import import CsvImportOptions, import_csv, parse_role_args
-
     src = Path(args.file)
-    fmt = args.format or _detect_format(src)
-    if fmt not in FORMATS:
-        raise ImportFormatError(f"unknown format {fmt!r}; known: {', '.join(FORMATS)}")
+    fmt = get_format(args.format).name if args.format else detect_format(src)
     meta = SessionMetadata(
         vehicle=args.vehicle,
         corner=args.corner,
@@ -72,15 +76,13 @@ def run(args: argparse.Namespace) -> int:
         added_mass_kg=args.added_mass,
         notes=args.notes,
     )
-    if not args.time_column:
-        raise ImportFormatError("say which column holds the time with --time COLUMN")
-    options = CsvImportOptions(
-        roles=parse_role_args(args.role),
-        time_column=args.time_column,
-        time_unit=args.time_unit,
-        accel_unit=args.accel_unit,
-        speed_unit=args.speed_unit,
+    out = import_file(
+        src,
+        args.output,
+        format=fmt,
+        metadata=meta,
+        overwrite=args.overwrite,
+        **options_from_args(fmt, args),
     )
-    out = import_csv(src, args.output, options, meta, overwrite=args.overwrite)
     print(f"wrote {out}")
     return 0
