@@ -1,0 +1,54 @@
+"""Plain-language summaries of a diagnosis (the JSON of ``fielddiag diagnose``)."""
+
+from __future__ import annotations
+
+
+def _fmt_params(params: dict[str, float]) -> str:
+    return ", ".join(f"{k} = {v:.4g}" for k, v in params.items())
+
+
+def format_summary(out: dict) -> str:
+    """Readable text of a diagnosis dict (vehicle or rig mode)."""
+    lines = []
+    mode = out.get("mode", "vehicle")
+    head = "rig test" if mode == "rig" else "suspension"
+    if out["verdict"] == "adequate":
+        lines.append(f"{head}: the linear model is adequate (no missing physics found)")
+    else:
+        lines.append(f"{head}: MISSING PHYSICS")
+    b, a = out["baseline"], out["augmented"]
+    lines.append(
+        f"  linear model   NRMSE fit {b['nrmse']:.3f}, held-out {b['nrmse_validation']:.3f}"
+    )
+    if out["verdict"] != "adequate":
+        lines.append(
+            f"  with findings  NRMSE fit {a['nrmse']:.3f}, held-out {a['nrmse_validation']:.3f}"
+        )
+    for f in out["findings"]:
+        conf = f.get("confidence", 0.0)
+        lines.append(f"  * {f['effect']} (confidence {conf:.2f}) {_fmt_params(f['parameters'])}")
+        lines.append(f"    {f['explanation']}")
+        where = f.get("where") or {}
+        if where.get("band_hz"):
+            lo, hi = where["band_hz"]
+            lines.append(f"    band {lo:.2g}-{hi:.2g} Hz")
+        wins = where.get("time_windows_s") or []
+        if wins:
+            txt = ", ".join(
+                f"{w['session']} {w['start_s']:.1f}-{w['end_s']:.1f} s" for w in wins[:4]
+            )
+            lines.append(f"    worst windows: {txt}")
+    if "parameters" in out and mode == "rig":
+        p = out["parameters"]
+        lines.append(
+            "  rig: stiffness {:.4g} {}, damping {:.4g} {}, moving mass {:.3g} kg".format(
+                p["stiffness"]["value"],
+                p["stiffness"]["unit"],
+                p["damping"]["value"],
+                p["damping"]["unit"],
+                p["moving_mass_kg"]["value"],
+            )
+        )
+    for w in out.get("warnings", []):
+        lines.append(f"  WARNING ({w['kind']}): {w['message']}")
+    return "\n".join(lines)
