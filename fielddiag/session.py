@@ -452,11 +452,36 @@ class SessionWriter:
             f["counters"][:] = np.array([self._counters[k] for k in COUNTER_NAMES], dtype="<i8")
             self._counters_dirty = False
 
+    def _pending_bytes(self) -> int:
+        n = sum(col.nbytes for b in self._pending_daq for col in b)
+        n += sum(t.nbytes for t in self._pending_time)
+        n += sum(t.nbytes + v.nbytes for parts in self._pending_signals.values() for t, v in parts)
+        n += sum(f.nbytes for f in self._pending_frames)
+        return n
+
+    def _check_space(self) -> None:
+        """Refuse to write when the disk cannot take it.
+
+        HDF5 reports a failed chunk write only from a destructor (printed, not raised), so
+        a full disk would silently zero data. Check before writing: the pending bytes, one
+        new chunk per dataset that grows, and a margin for metadata.
+        """
+        st = os.statvfs(self._file_path.parent)
+        free = st.f_bavail * st.f_frsize
+        growing = len(self.channels) + 1 + 2 * len(self.signals) + 4
+        need = self._pending_bytes() + growing * _CHUNK_SAMPLES * 8 + (1 << 20)
+        if free < need:
+            raise OSError(
+                f"disk full: {free / 1e6:.1f} MB free on {self._file_path.parent}, "
+                f"{need / 1e6:.1f} MB needed for the next write"
+            )
+
     def flush(self) -> None:
         """Write everything appended so far and make it durable on disk."""
         self._check_open()
         with self._lock:
             try:
+                self._check_space()
                 self._write_pending()
                 self._file.flush()
                 os.fsync(self._fsync_fd)
@@ -484,9 +509,12 @@ class SessionWriter:
             failed = self.error
             try:
                 if failed is None:
+                    self._check_space()
                     self._write_pending()
                     self._file["status"][0] = b"closed"
                     self._file.flush()
+            except OSError as exc:
+                failed = self.error = exc
             finally:
                 self._file.close()
                 os.close(self._fsync_fd)

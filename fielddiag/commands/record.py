@@ -1,0 +1,184 @@
+"""``fielddiag record``: record a DAQ and CAN sources into one session.
+
+    fielddiag record --daq serial:///dev/ttyUSB0 \\
+        --can "can://socketcan/can0?bitrate=500000&dbc=car.dbc" \\
+        --signal vehicle_speed=SPEED.SPEED -o drive.h5 \\
+        --added-mass 0 --vehicle "RAV4 2018" --corner front-left
+
+A status line shows rates, frames lost, CRC errors, buffer fill and elapsed time. Ctrl-C
+(or SIGTERM, or --duration) stops cleanly. The file is flushed every 0.5 s, can be read
+while it grows, and a killed recorder loses at most the last second. If the disk fills
+up, the recording stops with a message and everything written before is kept.
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import time
+
+from fielddiag.errors import FieldDiagError
+
+
+def _interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "record",
+        help="record a DAQ (serial) and CAN sources into a session file",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument(
+        "--daq",
+        metavar="URL",
+        help="DAQ source: serial://PORT?baud=921600 or serial+ascii://PORT?baud=115200",
+    )
+    p.add_argument(
+        "--can",
+        metavar="URL",
+        action="append",
+        default=[],
+        help="CAN source: can://INTERFACE/CHANNEL?dbc=FILE or canlog://FILE?dbc=FILE "
+        "(repeatable; the n-th is stored as bus n)",
+    )
+    p.add_argument(
+        "--signal",
+        metavar="NAME",
+        action="append",
+        default=[],
+        help="DBC signal to decode and store: SIGNAL, MESSAGE.SIGNAL or "
+        "ALIAS=MESSAGE.SIGNAL (repeatable; km/h and mph become m/s)",
+    )
+    p.add_argument(
+        "--speed-signal",
+        metavar="NAME",
+        default=None,
+        help="which decoded signal is the vehicle speed (default: found by name)",
+    )
+    p.add_argument("-o", "--output", required=True, metavar="SESSION.h5", help="file to create")
+    p.add_argument(
+        "--duration",
+        type=float,
+        default=None,
+        metavar="S",
+        help="stop after S seconds (default: Ctrl-C)",
+    )
+    p.add_argument(
+        "--added-mass",
+        type=float,
+        default=0.0,
+        metavar="KG",
+        help="mass added on the body for this drive (0 = as the car is)",
+    )
+    p.add_argument("--vehicle", default="", metavar="NAME")
+    p.add_argument("--corner", default="", metavar="NAME", help="e.g. front-left")
+    p.add_argument("--operator", default="", metavar="NAME")
+    p.add_argument("--notes", default="", metavar="TEXT")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing file")
+    p.add_argument("--quiet", action="store_true", help="no status line")
+    p.add_argument(
+        "--status-interval",
+        type=float,
+        default=None,
+        metavar="S",
+        help="seconds between status lines (0.5 on a terminal, else 5)",
+    )
+    p.set_defaults(func=run)
+
+
+def build_sources(args: argparse.Namespace) -> list:
+    """The sources named on the command line, configured (not opened)."""
+    from drivers.base import open_source, parse_source_url
+    from drivers.can_vehicle import CanBusSource, _CanSource
+
+    if not args.daq and not args.can:
+        raise FieldDiagError("nothing to record: give --daq URL and/or --can URL")
+    sources = []
+    if args.daq:
+        src = open_source(args.daq)
+        if src.kind != "daq":
+            raise FieldDiagError(f"--daq {args.daq} is not a DAQ source; use --can for CAN")
+        sources.append(src)
+    for i, url in enumerate(args.can):
+        src = open_source(url)
+        if not isinstance(src, _CanSource):
+            raise FieldDiagError(f"--can {url} is not a CAN source (can:// or canlog://)")
+        src.add_signals(args.signal)
+        if args.speed_signal:
+            src.speed_signal = args.speed_signal
+        if isinstance(src, CanBusSource) and "bus" not in parse_source_url(url).params:
+            src.bus_index = i
+        sources.append(src)
+    if args.signal and not args.can:
+        raise FieldDiagError("--signal needs a --can source with a DBC")
+    return sources
+
+
+def run(args: argparse.Namespace) -> int:
+    from fielddiag.channels import SessionMetadata
+    from fielddiag.recorder import Recorder, format_status
+
+    sources = build_sources(args)
+    meta = SessionMetadata(
+        vehicle=args.vehicle,
+        corner=args.corner,
+        operator=args.operator,
+        added_mass_kg=args.added_mass,
+        notes=args.notes,
+    )
+    rec = Recorder(args.output, sources, metadata=meta, overwrite=args.overwrite)
+    if threading_main():
+        signal.signal(signal.SIGTERM, _interrupt)
+        signal.signal(signal.SIGINT, _interrupt)  # also when started in the background
+    rec.start()
+    tty = sys.stderr.isatty()
+    interval = args.status_interval or (0.5 if tty else 5.0)
+    chans = ", ".join(f"{c.name} ({c.role})" for c in rec.channels) or "none"
+    sigs = ", ".join(s.name for s in rec.signals) or "none"
+    print(
+        f"recording to {args.output}\n  channels: {chans}\n  signals: {sigs}\n  Ctrl-C to stop",
+        file=sys.stderr,
+        flush=True,
+    )
+    next_status = time.monotonic() + interval
+    try:
+        while rec.running:
+            if args.duration is not None and rec.clock.now() >= args.duration:
+                break
+            time.sleep(0.1)
+            if not args.quiet and time.monotonic() >= next_status:
+                line = format_status(rec.status())
+                if tty:
+                    sys.stderr.write("\r" + line[:160].ljust(160))
+                else:
+                    sys.stderr.write(line + "\n")
+                sys.stderr.flush()
+                next_status += interval
+    except KeyboardInterrupt:
+        pass
+    finally:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C must not cut the close
+        try:
+            final = rec.stop()
+        finally:
+            signal.signal(signal.SIGINT, signal.default_int_handler)
+            if tty and not args.quiet:
+                sys.stderr.write("\n")
+    print(
+        f"stopped after {final['elapsed_s']:.1f} s: {final['samples']} samples, "
+        f"{final['frames_received']} frames, {final['frames_lost']} lost, "
+        f"{final['crc_errors']} CRC errors, {final['gaps']} gaps, "
+        f"{final['can_frames_received']} CAN frames -> {args.output}",
+        file=sys.stderr,
+    )
+    return 0
+
+
+def threading_main() -> bool:
+    import threading
+
+    return threading.current_thread() is threading.main_thread()
