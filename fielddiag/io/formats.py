@@ -528,7 +528,11 @@ def _import_comma2k19(
             f"{path.name}: no comma2k19 IMU CSV (with t_boot_s and acc_down_mps2) beside it; "
             "import the IMU file together with its CAN speed and GNSS files"
         )
-    kwargs: dict[str, Any] = {"gnss_csv": files.get("gnss"), "overwrite": overwrite}
+    kwargs: dict[str, Any] = {
+        "gnss_csv": files.get("gnss"),
+        "overwrite": overwrite,
+        "metadata": metadata,
+    }
     if metadata.vehicle:
         kwargs["vehicle"] = metadata.vehicle
     return Path(module.import_vehicle_imu(files["imu"], files.get("speed"), out_path, **kwargs))

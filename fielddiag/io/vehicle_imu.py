@@ -82,6 +82,7 @@ def import_vehicle_imu(
     gnss_csv: str | os.PathLike | None = None,
     vehicle: str = "Toyota RAV4 2018 (comma2k19, dongle b0c9d2329ad1606b)",
     overwrite: bool = False,
+    metadata: SessionMetadata | None = None,
 ) -> Path:
     """Write the IMU (and CAN speed, GNSS) CSVs as a session; return its path.
 
@@ -99,6 +100,8 @@ def import_vehicle_imu(
         Stored in the metadata.
     overwrite : bool
         Replace an existing session file.
+    metadata : SessionMetadata or None
+        Fields the user set (corner, operator, added mass, notes) override the defaults.
 
     Raises
     ------
@@ -150,5 +153,10 @@ def import_vehicle_imu(
                "timing_jitter_fraction": float(np.std(dt) / np.median(dt)),
                "imported_from": [str(Path(p).name) for p in (imu_csv, speed_csv, gnss_csv)
                                  if p is not None]})
+    if metadata is not None:
+        for key in ("corner", "operator", "notes"):
+            if getattr(metadata, key):
+                setattr(meta, key, getattr(metadata, key))
+        meta.added_mass_kg = metadata.added_mass_kg
     return write_session(out_path, meta, channels, samples, sample_rate_hz=rate, time_s=t,
                          signals=signals, overwrite=overwrite)

@@ -1,0 +1,70 @@
+"""``fielddiag ride SESSION.h5 [--plots DIR] [--json OUT]``: what a body accelerometer
+alone says (vertical spectrum, dominant frequencies against speed)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from fielddiag.errors import FieldDiagError
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "ride",
+        help="body-only analysis: vertical spectrum and dominant frequencies against speed",
+        description=(
+            "For drives with only a body accelerometer (no wheel sensor, so no "
+            "identification): the spectrum of the vertical body acceleration, its dominant "
+            "frequencies, and how they move with vehicle speed."
+        ),
+    )
+    p.add_argument("session", help="session file (.h5) with a body channel")
+    p.add_argument("--plots", metavar="DIR", help="write ride_spectrum.png and ride_vs_speed.png")
+    p.add_argument("--json", metavar="OUT.json", help="write the analysis as JSON")
+    p.set_defaults(func=run)
+
+
+def format_ride(a) -> str:
+    """Readable summary of a RideAnalysis."""
+    lines = [
+        f"body vertical acceleration: {a.duration_s:.0f} s at {a.sample_rate_hz:.1f} Hz, "
+        f"rms {a.rms_mps2:.3f} m/s2",
+        "dominant frequencies: "
+        + (", ".join(f"{p.freq_hz:.2f} Hz" for p in a.peaks) or "none stand out"),
+    ]
+    for tr in a.tracks:
+        kind = (
+            f"moves with speed ({tr.slope_hz_per_mps:+.3f} Hz per m/s)"
+            if tr.implied_rolling_radius_m
+            else "does not move with speed: a resonance of the car"
+        )
+        lines.append(f"  {tr.mean_freq_hz:.2f} Hz {kind}")
+    lines += [f"note: {n}" for n in a.notes]
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> int:
+    from fielddiag.identify.ride import analyse_ride
+    from fielddiag.session import SessionReader
+
+    if not Path(args.session).is_file():
+        raise FieldDiagError(f"{args.session} does not exist")
+    with SessionReader(args.session) as s:
+        body = s.channel_for_role("body")
+        t, a = s.read_with_time(body.name)
+        speed_t = speed_v = None
+        if any(sig.role == "speed" for sig in s.signals):
+            speed_t, speed_v = s.signal(s.signal_for_role("speed").name)
+    analysis = analyse_ride(a, t, speed_time_s=speed_t, speed_mps=speed_v)
+    print(format_ride(analysis))
+    if args.plots:
+        from fielddiag.plots import plot_ride
+
+        for png in plot_ride(analysis, args.plots, title=Path(args.session).name):
+            print(f"plot written: {png}")
+    if args.json:
+        Path(args.json).write_text(json.dumps(analysis.to_dict(), indent=2))
+        print(f"JSON written to {args.json}")
+    return 0
