@@ -1,0 +1,231 @@
+"""Grey-box fit: perfect-data recovery, sensitivities, honest uncertainty, validation, CLI."""
+
+from __future__ import annotations
+
+import itertools
+import json
+
+import numpy as np
+import pytest
+
+from fielddiag.cli import main
+from fielddiag.errors import FieldDiagError, InsufficientDataError
+from fielddiag.identify.greybox import (
+    GreyBoxData,
+    GreyBoxProblem,
+    fit_greybox,
+    hac_covariance,
+    simulate_body,
+)
+from fielddiag.identify.greybox_results import GreyBoxResult
+from fielddiag.identify.terms import CoulombFriction, linear_model, model_from_sim
+from fielddiag.sim import QuarterCarParams, SensorModel, make_effect, simulate, simulate_pair
+from fielddiag.simio import drive_to_session
+
+CAR = QuarterCarParams(coupling_stiffness_n_per_m=3000.0)
+TRUTH_PER_KG = {
+    "suspension_stiffness_n_per_m": 24e3 / 380,
+    "suspension_damping_ns_per_m": 1800 / 380,
+    "coupling_stiffness_n_per_m": 3000 / 380,
+}
+
+
+@pytest.fixture(scope="module")
+def perfect() -> GreyBoxData:
+    """Simulator truth (wheel motion in, body acceleration out), full band."""
+    return GreyBoxData.from_drive(simulate(CAR, duration_s=20.0, road_class="C", seed=1),
+                                  truth=True)
+
+
+def _max_rel_err(res: GreyBoxResult, truth: dict[str, float]) -> float:
+    return max(abs(res.value(k) / v - 1) for k, v in truth.items())
+
+
+@pytest.mark.parametrize("factors", list(itertools.product((5.0, 0.2), repeat=3)))
+def test_perfect_data_from_5x_off_start(perfect: GreyBoxData, factors: tuple) -> None:
+    """1e-6 within 10 iterations from every start that is 5x off (any direction)."""
+    start = {k: v * f for (k, v), f in zip(TRUTH_PER_KG.items(), factors, strict=True)}
+    res = fit_greybox(perfect, linear_model(coupling=True), initial=start)
+    assert res.mode == "per_unit_mass"
+    assert _max_rel_err(res, TRUTH_PER_KG) < 1e-6
+    assert res.iterations <= 10
+    assert res.sessions[0].nrmse < 1e-5
+
+
+@pytest.mark.parametrize("factor", [5.0, 0.2])
+def test_perfect_data_plain_simulation_no_continuation(perfect: GreyBoxData,
+                                                       factor: float) -> None:
+    """Serban & Freeman's procedure exactly: simulation from static equilibrium only."""
+    start = {k: v * factor for k, v in TRUTH_PER_KG.items()}
+    res = fit_greybox(perfect, linear_model(coupling=True), initial=start, horizons_s=None)
+    assert _max_rel_err(res, TRUTH_PER_KG) < 1e-6
+    assert res.iterations <= 10
+    assert res.uncertainty["stages"] == [
+        {"horizon_s": None, "iterations": res.iterations, "cost": pytest.approx(
+            res.uncertainty["stages"][0]["cost"])}]
+
+
+def test_perfect_data_two_sessions_give_absolute_values_and_mass() -> None:
+    before, after = simulate_pair(CAR, added_mass_kg=80.0, seed=3, duration_s=20.0)
+    data = [GreyBoxData.from_drive(d, truth=True) for d in (before, after)]
+    truth = {"suspension_stiffness_n_per_m": 24e3, "suspension_damping_ns_per_m": 1800.0,
+             "coupling_stiffness_n_per_m": 3000.0, "body_mass_kg": 380.0}
+    for factors in [(5, 5, 5, 0.2), (0.2, 0.2, 5, 5)]:
+        start = {k: v * f for (k, v), f in zip(truth.items(), factors, strict=True)}
+        res = fit_greybox(data, linear_model(coupling=True), initial=start)
+        assert res.mode == "absolute"
+        assert _max_rel_err(res, truth) < 1e-6
+        assert res.iterations <= 10
+    assert res.body_mass_kg == pytest.approx(380.0, rel=1e-6)
+
+
+def test_sensitivities_are_the_derivative_of_the_simulation() -> None:
+    """Jacobian from the sensitivity equations == central differences of the residuals
+    (nonlinear model, band-limited data, two sessions with added mass)."""
+    effects = [make_effect("coulomb_friction", friction_force_n=80.0),
+               make_effect("cubic_stiffness", cubic_stiffness_n_per_m3=3e6)]
+    before, after = simulate_pair(CAR, added_mass_kg=60.0, seed=4, duration_s=12.0,
+                                  effects=effects, road_class="D")
+    data = [GreyBoxData.from_drive(d, band_hz=(0.8, 30.0)) for d in (before, after)]
+    model, values = model_from_sim(CAR, effects)
+    prob = GreyBoxProblem(model, data)
+    theta_u = model.vector(values) / np.where(model.force_scaled, 380.0, 1.0)
+    z = prob.pack(theta_u * 1.1, 400.0, np.array([[1e-3, -2e-3], [5e-4, 1e-3]]))
+    r, jac = prob.residual_and_jacobian(z)
+    for j in range(z.size):
+        # steps large enough that round-off (~1e-13 m/s2 per sample) stays below 1e-6
+        h = 1e-4 * max(abs(z[j]), 1e-2)
+        zp, zm = z.copy(), z.copy()
+        zp[j] += h
+        zm[j] -= h
+        fd = (prob.residual(zp) - prob.residual(zm)) / (2 * h)
+        err = np.linalg.norm(fd - jac[:, j]) / np.linalg.norm(jac[:, j])
+        assert err < 1e-5, (j, err)
+
+
+def test_simulate_body_starts_from_static_equilibrium() -> None:
+    """With the wheel still, the body stays put at the loaded equilibrium (a2 = 0)."""
+    model = linear_model(coupling=True)
+    theta = model.vector({"suspension_stiffness_n_per_m": 24e3,
+                          "coupling_stiffness_n_per_m": 3e3})
+    a, _ = simulate_body(model, theta, np.full(500, 0.01), np.zeros(500), 500.0,
+                         mass_kg=380.0, added_mass_kg=80.0)
+    np.testing.assert_allclose(a, 0.0, atol=1e-12)
+    # a 1 cm initial offset rings at the body frequency sqrt((K2 + K3) / (M2 + dM))
+    a, jac = simulate_body(model, theta, np.zeros(4000), np.zeros(4000), 500.0, mass_kg=380.0,
+                           added_mass_kg=80.0, initial_offset_m=0.01, sensitivities=True)
+    spec = np.abs(np.fft.rfft(a))
+    f_peak = np.fft.rfftfreq(a.size, 1 / 500.0)[np.argmax(spec)]
+    f_n = np.sqrt(27e3 / 460.0) / (2 * np.pi) * np.sqrt(1 - (1800 / (2 * np.sqrt(27e3 * 460)))
+                                                        ** 2)
+    assert f_peak == pytest.approx(f_n, abs=500.0 / a.size)
+    assert jac.shape == (4000, model.n_params + 3)
+
+
+def test_monte_carlo_coverage_20_drives() -> None:
+    """Noisy sensors, integrated like a recording: truth within 3 std in >= 18 of 20 drives,
+    and the standard deviations neither optimistic nor wildly pessimistic."""
+    car = QuarterCarParams()
+    model = linear_model()
+    truth = np.array([24e3 / 380, 1800 / 380])
+    z = []
+    for seed in range(20):
+        d = simulate(car, duration_s=30.0, road_class="C", seed=100 + seed,
+                     sensor=SensorModel(noise_std_mps2=0.05))
+        res = fit_greybox(GreyBoxData.from_drive(d), model)
+        v = np.array([res.parameters[i].value for i in range(2)])
+        s = np.array([res.parameters[i].std for i in range(2)])
+        z.append((v - truth) / s)
+    z = np.array(z)
+    inside = (np.abs(z) < 3).sum(axis=0)
+    assert np.all(inside >= 18), inside
+    assert np.all(z.std(axis=0) < 1.7) and np.all(z.std(axis=0) > 0.4), z.std(axis=0)
+
+
+def test_validation_on_held_out_data_prefers_the_right_model() -> None:
+    car = QuarterCarParams()
+    effects = [make_effect("coulomb_friction", friction_force_n=150.0)]
+    d = simulate(car, duration_s=60.0, road_class="C", seed=21, effects=effects,
+                 sensor=SensorModel(noise_std_mps2=0.02))
+    fit_part, held_out = GreyBoxData.from_drive(d).split(0.7)
+    linear = fit_greybox(fit_part, linear_model(), validation=[held_out])
+    with_friction = fit_greybox(fit_part, linear_model() + CoulombFriction(),
+                                validation=[held_out])
+    for res in (linear, with_friction):
+        roles = [s.role for s in res.sessions]
+        assert roles == ["fit", "validation"]
+        assert 0 < res.sessions[0].nrmse < 1 and 0 < res.sessions[1].nrmse < 1
+    assert with_friction.validation_sessions()[0].nrmse < 0.7 * linear.validation_sessions()[
+        0].nrmse
+    # the friction term is found (band-limited data bias it low by < 15 %)
+    ff = with_friction.value("friction_force_n")
+    assert ff == pytest.approx(150.0 / 380.0, rel=0.15)
+
+
+def test_hac_covariance_white_vs_coloured(rng: np.random.Generator) -> None:
+    """For white residuals the sandwich equals s^2 (J^T J)^-1; for AR(1) residuals with
+    rho = 0.9 and a slowly varying regressor it is ~ (1 + rho) / (1 - rho) = 19 x larger."""
+    n = 20000
+    jac = np.column_stack([np.sin(2 * np.pi * np.arange(n) / 4000.0), np.ones(n)])
+    e = rng.normal(size=n)
+    cov, info = hac_covariance(jac, e)
+    white = info["white_covariance"]
+    assert np.allclose(np.diag(cov) / np.diag(white), 1.0, atol=0.25)
+    ar = np.empty(n)
+    ar[0] = e[0]
+    for i in range(1, n):
+        ar[i] = 0.9 * ar[i - 1] + e[i]
+    cov, info = hac_covariance(jac, ar)
+    ratio = np.diag(cov) / np.diag(info["white_covariance"])
+    assert np.all((ratio > 12) & (ratio < 28)), ratio
+
+
+def test_user_errors() -> None:
+    d = simulate(QuarterCarParams(), duration_s=12.0, seed=2)
+    data = GreyBoxData.from_drive(d, truth=True)
+    with pytest.raises(InsufficientDataError, match="different added masses"):
+        fit_greybox(data, absolute=True)
+    with pytest.raises(InsufficientDataError, match="too short"):
+        GreyBoxData.from_accelerations(d.wheel_accel_mps2[:500], d.body_accel_mps2[:500], 500.0,
+                                       band_hz=(0.5, 30.0))
+    bad = d.body_accel_mps2.copy()
+    bad[10] = np.nan
+    with pytest.raises(FieldDiagError, match="NaN"):
+        GreyBoxData.from_accelerations(d.wheel_accel_mps2, bad, 500.0)
+
+
+def test_result_json_round_trip(perfect: GreyBoxData) -> None:
+    res = fit_greybox(perfect, linear_model(coupling=True))
+    d = json.loads(json.dumps(res.to_dict()))
+    back = GreyBoxResult.from_dict(d)
+    assert back.to_dict() == res.to_dict()
+    assert back.value("suspension_stiffness_n_per_m") == res.value("suspension_stiffness_n_per_m")
+    assert "per unit mass" in back.summary()
+
+
+def test_cli_fit_two_sessions(tmp_path, capsys) -> None:
+    car = QuarterCarParams()
+    before, after = simulate_pair(car, added_mass_kg=80.0, seed=31, duration_s=40.0,
+                                  sensor=SensorModel(noise_std_mps2=0.05))
+    b = drive_to_session(before, tmp_path / "before.h5")
+    a = drive_to_session(after, tmp_path / "after.h5")
+    out = tmp_path / "fit.json"
+    assert main(["fit", str(b), str(a), "--json", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "absolute" in text and "validation" in text
+    res = GreyBoxResult.from_dict(json.loads(out.read_text()))
+    for name, truth in (("suspension_stiffness_n_per_m", 24e3),
+                        ("suspension_damping_ns_per_m", 1800.0), ("body_mass_kg", 380.0)):
+        p = res.parameter(name)
+        assert abs(p.value - truth) < 4 * p.std + 0.002 * truth, (name, p.value, p.std)
+        assert 0 < p.rel_std_pct < 5
+    assert len(res.validation_sessions()) == 2
+    # one session: per unit mass, JSON on standard output
+    assert main(["fit", str(b), "--holdout", "0", "--json", "-"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["mode"] == "per_unit_mass"
+    k = d["parameters"][0]
+    assert k["name"] == "suspension_stiffness_n_per_m_per_kg"
+    assert abs(k["value"] - 24e3 / 380) < 4 * k["std"] + 0.002 * 24e3 / 380
+    assert main(["fit", str(b), "--terms", "no_such_term"]) == 1
+    assert main(["fit", str(tmp_path / "missing.h5")]) == 1
