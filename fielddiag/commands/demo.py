@@ -1,28 +1,43 @@
 """``fielddiag demo``: the main job end to end with no hardware.
 
-Records a drive before and after adding a mass to the body, then runs what the rest of
-the pipeline offers on the pair, and prints what it made. Every run writes into a new
-folder, so nothing from an earlier run is ever overwritten.
+1. Records two drives of a simulated car through the virtual devices: the virtual DAQ on
+   a pseudo-terminal read by the real serial driver, the virtual ECU on a python-can bus
+   read by the real CAN driver. One drive is the car as it is, one with a mass added to
+   the body. (Both are recorded at once to save your time; a technician records them one
+   after the other.) The demo car hides dry friction in its strut.
+2. Identifies sprung mass, stiffness and damping from the pair.
+3. Diagnoses the pair: locates the mismatch and names the physics the linear model missed.
+4. Serves the dashboard over the demo's sessions (``--no-serve`` to skip).
+
+Every run writes into a new folder, so nothing from an earlier run is ever overwritten.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import sys
+import threading
 import time
 from pathlib import Path
 
 DEFAULT_ADDED_MASS_KG = 60.0
+#: The demo car's hidden physics: dry friction in the strut (concealed: the linear model
+#: alone fits its body acceleration well by eye).
+DEMO_EFFECTS = (("coulomb_friction", {"friction_force_n": 70.0}),)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("demo", help="record, identify and diagnose a simulated car, no hardware")
-    p.add_argument("--out", default="fielddiag-demo", help="folder for the demo's runs")
-    p.add_argument(
-        "--duration", type=float, default=120.0, metavar="S", help="length of each drive"
+    p = sub.add_parser(
+        "demo", help="record, identify and diagnose a simulated car, no hardware needed"
     )
+    p.add_argument("--out", default="fielddiag-demo", help="folder for the demo's runs")
+    p.add_argument("--duration", type=float, default=120.0, metavar="S",
+                   help="length of each recorded drive (real time; default 120)")
     p.add_argument("--added-mass", type=float, default=DEFAULT_ADDED_MASS_KG, metavar="KG")
     p.add_argument("--seed", type=int, default=1, help="random seed of the demo car's roads")
     p.add_argument("--no-serve", action="store_true", help="do not start the dashboard at the end")
+    p.add_argument("--port", type=int, default=8080, help="dashboard port (default 8080)")
     p.set_defaults(func=run)
 
 
@@ -38,45 +53,103 @@ def _new_run_dir(root: Path) -> Path:
     return run
 
 
-def run(args: argparse.Namespace) -> int:
+def _record_pair(run_dir: Path, args: argparse.Namespace) -> list[Path]:
+    """Record before and after concurrently through the virtual devices, with progress."""
     from fielddiag import sim
-    from fielddiag.simio import drive_to_session
+    from fielddiag.recorder import record_virtual_drive
 
+    effects = [sim.make_effect(n, **p) for n, p in DEMO_EFFECTS]
+    labels = (("before", 0.0, args.seed), ("after", args.added_mass, args.seed + 1))
+    status: dict[str, dict] = {}
+    results: dict[str, Path] = {}
+    errors: list[BaseException] = []
+
+    def worker(label: str, mass: float, seed: int) -> None:
+        try:
+            results[label] = record_virtual_drive(
+                run_dir / f"{label}.h5", duration_s=args.duration, added_mass_kg=mass,
+                seed=seed, vehicle="demo car", corner="front-left", effects=effects,
+                notes=f"demo drive {label}, {args.added_mass:g} kg added for 'after'",
+                include_recipe=False,
+                progress=lambda st, label=label: status.__setitem__(label, st),
+            )
+        except BaseException as exc:  # reported by the main thread
+            errors.append(exc)
+
+    threads = [threading.Thread(target=worker, args=lab, daemon=True) for lab in labels]
+    for t in threads:
+        t.start()
+    tty = sys.stdout.isatty()
+    last = 0.0
+    while any(t.is_alive() for t in threads):
+        time.sleep(0.25)
+        if time.monotonic() - last < (0.5 if tty else 10.0):
+            continue
+        last = time.monotonic()
+        parts = []
+        for label, *_ in labels:
+            st = status.get(label, {})
+            parts.append(
+                f"{label}: {st.get('elapsed_s', 0.0):5.1f}/{args.duration:g} s, "
+                f"{st.get('frames_received', 0)} frames, {st.get('frames_lost', 0)} lost"
+            )
+        line = "  recording  " + " | ".join(parts)
+        print(("\r" + line) if tty else line, end="" if tty else "\n", flush=True)
+    if tty:
+        print()
+    for t in threads:
+        t.join()
+    if errors:
+        raise errors[0]
+    return [results["before"], results["after"]]
+
+
+def run(args: argparse.Namespace) -> int:
+    from fielddiag.errors import FieldDiagError
+    from fielddiag.identify import identify_sessions
+    from fielddiag.plots import write_identify_plots
+
+    if args.duration < 30:
+        raise FieldDiagError("--duration must be at least 30 s for the identification")
     run_dir = _new_run_dir(Path(args.out))
     print(f"fielddiag demo: writing into {run_dir}")
-    params = sim.QuarterCarParams()
-    sensor = sim.SensorModel(output_rate_hz=500.0, snr_db=35.0, bias_mps2=0.05)
-    made = []
-    for label, mass, seed in (
-        ("before", 0.0, args.seed),
-        ("after", args.added_mass, args.seed + 1),
-    ):
-        t0 = time.perf_counter()
-        drive = sim.simulate(
-            params,
-            duration_s=args.duration,
-            road_class="C",
-            added_mass_kg=mass,
-            sensor=sensor,
-            seed=seed,
-        )
-        path = drive_to_session(
-            drive,
-            run_dir / f"{label}.h5",
-            vehicle="demo car",
-            corner="front-left",
-            notes=f"demo drive {label} adding {args.added_mass:g} kg",
-        )
-        made.append(path)
-        print(
-            f"  {label:<6} {path.name}: {drive.duration_s:g} s at {drive.sample_rate_hz:g} Hz, "
-            f"road class {drive.road_class}, added mass {mass:g} kg "
-            f"({time.perf_counter() - t0:.1f} s)"
-        )
     print(
-        f"true car: sprung mass {params.body_mass_kg:g} kg, stiffness "
-        f"{params.suspension_stiffness_n_per_m:g} N/m, damping "
-        f"{params.suspension_damping_ns_per_m:g} N s/m"
+        f"1/4 recording two {args.duration:g} s drives through the virtual DAQ (pseudo-"
+        f"terminal) and virtual ECU (CAN): as the car is, and with {args.added_mass:g} kg "
+        "on the body"
     )
-    print(f"done: {len(made)} sessions in {run_dir} (inspect with `fielddiag info {made[0]}`)")
+    t0 = time.perf_counter()
+    before, after = _record_pair(run_dir, args)
+    print(f"    recorded {before.name} and {after.name} in {time.perf_counter() - t0:.0f} s")
+
+    print("2/4 identifying sprung mass, stiffness and damping")
+    ident = identify_sessions(before, after, added_mass_kg=args.added_mass)
+    print("    " + ident.summary().replace("\n", "\n    "))
+    ident.to_json(run_dir / "identify.json")
+    write_identify_plots(ident, run_dir / "plots")
+
+    print("3/4 diagnosing: where does the linear model miss, and why?")
+    from fielddiag.diagnose.engine import diagnose_sessions
+    from fielddiag.diagnose.report import format_summary
+    from fielddiag.plots.diagnose import write_diagnosis_plots
+
+    diag = diagnose_sessions([before, after], added_mass_kg=args.added_mass)
+    out = diag.to_dict()
+    (run_dir / "diagnose.json").write_text(json.dumps(out, indent=2))
+    write_diagnosis_plots(diag, run_dir / "plots")
+    print("    " + format_summary(out).replace("\n", "\n    "))
+    print(
+        "    (the demo car has dry friction of "
+        f"{DEMO_EFFECTS[0][1]['friction_force_n']:g} N in its strut)"
+    )
+    print(f"    results: {run_dir / 'identify.json'}, {run_dir / 'diagnose.json'}, "
+          f"plots in {run_dir / 'plots'}")
+    if args.no_serve:
+        print("4/4 dashboard skipped (--no-serve); start it with "
+              f"`fielddiag serve --root {Path(args.out)}`")
+        return 0
+    from fielddiag.web.app import serve
+
+    print(f"4/4 dashboard on http://127.0.0.1:{args.port}/  (Ctrl-C to stop)")
+    serve(Path(args.out), host="127.0.0.1", port=args.port)
     return 0

@@ -1349,6 +1349,13 @@ def _nrmse(residual: np.ndarray, measured: np.ndarray) -> float:
 
 def validate_greybox(result: GreyBoxResult, data: Sequence[GreyBoxData], *,
                      substeps: int = 1) -> list[SessionFit]:
+    """NRMSE of a fitted model on data not used in the fit (see :func:`validation_runs`)."""
+    return [run[0] for run in validation_runs(result, data, substeps=substeps)]
+
+
+def validation_runs(result: GreyBoxResult, data: Sequence[GreyBoxData], *,
+                    substeps: int = 1
+                    ) -> list[tuple[SessionFit, np.ndarray, np.ndarray, np.ndarray]]:
     """NRMSE of a fitted model on data not used in the fit.
 
     Only each session's initial body offset and velocity are fitted (they are not model
@@ -1364,8 +1371,10 @@ def validate_greybox(result: GreyBoxResult, data: Sequence[GreyBoxData], *,
 
     Returns
     -------
-    list of SessionFit
-        One per session, ``role="validation"``.
+    list of (SessionFit, measured, residual, time_s)
+        One per session, ``role="validation"``, with the band-limited measured body
+        acceleration, the residual (measured - simulated) and the recording time of each
+        residual sample (edges trimmed by the band filter are left out).
     """
     model = ForceModel.from_dict(result.model)
     theta_u = np.array([result.per_unit_mass[k] for k in model.param_keys])
@@ -1397,10 +1406,12 @@ def validate_greybox(result: GreyBoxResult, data: Sequence[GreyBoxData], *,
         lm = levenberg_marquardt(fun, np.zeros(2), np.full(2, -np.inf), np.full(2, np.inf),
                                  max_iterations=20)
         pr = prob._prep[0]
-        out.append(SessionFit(
+        out.append((SessionFit(
             name=d.name, role="validation", added_mass_kg=float(d.added_mass_kg),
             samples=int(d.n_samples), duration_s=float(d.duration_s),
             sample_rate_hz=float(d.sample_rate_hz), nrmse=_nrmse(lm.residual, pr.measured),
             residual_rms_mps2=float(np.sqrt(np.mean(lm.residual**2))),
-            initial_offset_m=float(lm.x[0] * sc[0]), initial_velocity_mps=float(lm.x[1] * sc[1])))
+            initial_offset_m=float(lm.x[0] * sc[0]), initial_velocity_mps=float(lm.x[1] * sc[1])),
+            np.asarray(pr.measured), np.asarray(lm.residual),
+            d.start_s + (np.arange(len(lm.residual)) + (pr.keep.start or 0)) / d.sample_rate_hz))
     return out

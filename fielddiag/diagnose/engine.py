@@ -1,0 +1,735 @@
+"""Mismatch diagnosis of a car corner: fit, locate, name, refit, and check on held-out data.
+
+1. **Fit** the linear model (spring, damper, and coupling when significant) to the first
+   part of every drive with the grey-box fit: the body simulated from the measured wheel
+   motion, compared with the recorded body acceleration in the valid band.
+2. **Locate** the residual of that fit: the time windows where it stands out, the band
+   where it exceeds the noise, the region of (r, rdot) where the restoring force departs
+   from the linear surface.
+3. **Name**: every effect of the library is tried against the residual's signature (a
+   quick equation-error fit of the model plus that effect on the measured states); the
+   most promising effects and their pairs are then fitted with the full grey-box fit.
+4. **Choose** on the held-out last part of every drive (:mod:`.selection`): an effect is
+   reported only if it predicts unseen data significantly better, with physical values.
+   Structure left over that no effect explains is reported as ``unexplained``.
+5. **Check the data**: clipping, bias drift, a gain change between the drives, a time
+   offset between the channels are reported as warnings about the data.
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy import optimize
+
+from fielddiag import dsp
+from fielddiag.diagnose import data_checks
+from fielddiag.diagnose.locate import (
+    DepartureMap,
+    departure_map,
+    excess_band,
+    residual_psd,
+    residual_windows,
+)
+from fielddiag.diagnose.selection import (
+    CandidateFit,
+    Comparison,
+    compare,
+    confidence,
+    nrmse,
+    paired_block_t,
+    select_model,
+)
+from fielddiag.errors import FieldDiagError, InsufficientDataError
+from fielddiag.identify.greybox import (
+    GreyBoxData,
+    accel_unit_factor,
+    default_band_hz,
+    fit_greybox,
+    validation_runs,
+)
+from fielddiag.identify.terms import ForceModel, make_term
+
+#: The effects the diagnosis knows (names are part of the JSON interface).
+EFFECT_LIBRARY = ("coulomb_friction", "cubic_stiffness", "bump_stop", "asymmetric_damping")
+GRAVITY = dsp.GRAVITY_MPS2
+
+
+# ----------------------------------------------------------------------------- inputs
+@dataclass
+class Drive:
+    """One recorded drive: raw wheel and body accelerometer readings (m/s2, g included)."""
+
+    label: str  # "before" / "after" / "drive"
+    name: str
+    sample_rate_hz: float
+    start_s: float
+    wheel_accel_mps2: np.ndarray
+    body_accel_mps2: np.ndarray
+    added_mass_kg: float
+
+    @property
+    def time_s(self) -> np.ndarray:
+        return self.start_s + np.arange(self.wheel_accel_mps2.size) / self.sample_rate_hz
+
+
+def read_drive(path: str | os.PathLike, label: str, added_mass_kg: float | None = None) -> Drive:
+    """Read the wheel and body channels of a session (by role), refusing gaps."""
+    from fielddiag.session import SessionReader
+
+    with SessionReader(path) as s:
+        wch, bch = s.channel_for_role("wheel"), s.channel_for_role("body")
+        t = s.time_s()
+        if t.size < 2:
+            raise InsufficientDataError(f"{s.path.name} holds no samples")
+        if s.time_base != "uniform":
+            dt = np.diff(t)
+            if np.max(np.abs(dt * s.sample_rate_hz - 1.0)) > 0.5:
+                raise InsufficientDataError(
+                    f"{s.path.name} has gaps in its time base; diagnose needs a continuous "
+                    "recording (export the longest gap-free stretch)"
+                )
+        return Drive(
+            label=label,
+            name=s.path.name,
+            sample_rate_hz=s.sample_rate_hz,
+            start_s=float(t[0]),
+            wheel_accel_mps2=s.read(wch.name) * accel_unit_factor(wch.unit, wch.name),
+            body_accel_mps2=s.read(bch.name) * accel_unit_factor(bch.unit, bch.name),
+            added_mass_kg=s.metadata.added_mass_kg if added_mass_kg is None else added_mass_kg,
+        )
+
+
+@dataclass
+class _Prepared:
+    drive: Drive
+    full: GreyBoxData
+    fit: GreyBoxData
+    val: GreyBoxData
+
+
+def _prepare(drive: Drive, band: tuple[float, float], rate_hz: float, holdout: float) -> _Prepared:
+    w, b = dsp.integrate_pair(
+        drive.wheel_accel_mps2,
+        drive.body_accel_mps2,
+        drive.sample_rate_hz,
+        band,
+        output_rate_hz=rate_hz,
+    )
+    full = GreyBoxData(
+        sample_rate_hz=w.sample_rate_hz,
+        wheel_disp_m=w.displacement_m,
+        wheel_vel_mps=w.velocity_mps,
+        body_accel_mps2=b.acceleration_mps2,
+        added_mass_kg=drive.added_mass_kg,
+        name=drive.label,
+        body_disp_m=b.displacement_m,
+        body_vel_mps=b.velocity_mps,
+        band_hz=band,
+        start_s=drive.start_s,
+    )
+    fit, val = full.split(1.0 - holdout)
+    return _Prepared(drive, full, fit, val)
+
+
+# ----------------------------------------------------------------------------- fitting
+def _model(effects: Sequence[str], coupling: bool) -> ForceModel:
+    names = ["linear_spring", "linear_damper"] + (["coupling_spring"] if coupling else [])
+    return ForceModel(make_term(n) for n in [*names, *effects])
+
+
+def _effect_params(model: ForceModel, effects: Sequence[str]) -> list[tuple[str, Any]]:
+    return [
+        (key, spec)
+        for key, spec in zip(model.param_keys, model.specs, strict=True)
+        if key.split(".")[0] in effects
+    ]
+
+
+@dataclass
+class _Fit:
+    effects: tuple[str, ...]
+    result: Any  # GreyBoxResult
+    candidate: CandidateFit
+    runs: list  # validation runs per drive: (SessionFit, measured, residual, time_s)
+
+
+def _values(result) -> tuple[dict[str, float], dict[str, float]]:
+    vals = {p.key: float(p.value) for p in result.parameters}
+    stds = {p.key: float(p.std) for p in result.parameters}
+    return vals, stds
+
+
+def _pinned(result, model: ForceModel, effects: Sequence[str]) -> tuple[str, ...]:
+    """Effect parameters that are not clearly physical (at a bound, or a softening spring)."""
+    vals, stds = _values(result)
+    out = []
+    for key, spec in _effect_params(model, effects):
+        v, s = vals.get(key, np.nan), stds.get(key, np.nan)
+        if not np.isfinite(v):
+            out.append(key)
+            continue
+        s = s if np.isfinite(s) else 0.0
+        for bound in (spec.lower, spec.upper):
+            if np.isfinite(bound) and abs(v - bound) <= max(2.0 * s, 1e-9 * max(1.0, abs(bound))):
+                out.append(key)
+        if spec.name == "cubic_stiffness_n_per_m3" and v <= 2.0 * s:
+            out.append(key)  # not progressive (softening or indistinguishable from 0)
+        if spec.name in ("friction_force_n", "stiffness_n_per_m") and v <= 2.0 * s:
+            out.append(key)
+    if "asymmetric_damping" in effects:
+        c = vals.get("asymmetric_damping.compression_damping_ns_per_m", np.nan)
+        r = vals.get("asymmetric_damping.rebound_damping_ns_per_m", np.nan)
+        sc = stds.get("asymmetric_damping.compression_damping_ns_per_m", 0.0)
+        sr = stds.get("asymmetric_damping.rebound_damping_ns_per_m", 0.0)
+        if abs(c - r) <= 2.0 * np.hypot(sc, sr):
+            out.append("asymmetric_damping")  # symmetric after all
+    return tuple(dict.fromkeys(out))
+
+
+def _grey_fit(
+    effects: Sequence[str],
+    prepared: Sequence[_Prepared],
+    coupling: bool,
+    initial: dict[str, float] | None,
+    substeps: int,
+) -> _Fit:
+    model = _model(effects, coupling)
+    fits = [p.fit for p in prepared]
+    if initial:
+        allowed = set(model.param_keys) | {"body_mass_kg"}
+        initial = {k: v for k, v in initial.items() if k in allowed}
+    result = fit_greybox(fits, model, initial=initial, substeps=substeps, max_iterations=40)
+    runs = validation_runs(result, [p.val for p in prepared], substeps=substeps)
+    res_val = np.concatenate([r[2] for r in runs])
+    meas_val = np.concatenate([r[1] for r in runs])
+    vals, stds = _values(result)
+    fit_sessions = result.fit_sessions()
+    nr_fit = float(np.sqrt(np.mean([s.nrmse**2 for s in fit_sessions])))
+    cand = CandidateFit(
+        effects=tuple(effects),
+        values=vals,
+        std=stds,
+        nrmse_fit=nr_fit,
+        nrmse_validation=nrmse(res_val, meas_val),
+        residual_validation=res_val,
+        n_params=model.n_params,
+        at_bound=_pinned(result, model, effects),
+        extra={"model": model},
+    )
+    return _Fit(tuple(effects), result, cand, runs)
+
+
+def _initial_from(fit: _Fit) -> dict[str, float]:
+    vals, _ = _values(fit.result)
+    return {k: v for k, v in vals.items() if np.isfinite(v)}
+
+
+# ----------------------------------------------------------------------------- screening
+def _states(p: GreyBoxData) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    r = p.body_disp_m - p.wheel_disp_m
+    rdot = p.body_vel_mps - p.wheel_vel_mps
+    return r, rdot, p.body_disp_m, p.body_accel_mps2
+
+
+def _static_offset(base_vals: dict[str, float], added_mass_kg: float) -> float:
+    """Static suspension extension under the added mass for the linear model [m]."""
+    k = base_vals.get("linear_spring.suspension_stiffness_n_per_m", np.nan)
+    if "body_mass_kg" not in base_vals or not np.isfinite(k) or k <= 0:
+        return 0.0
+    return -added_mass_kg * GRAVITY / k
+
+
+def _equation_error_gain(
+    effects: Sequence[str],
+    prepared: Sequence[_Prepared],
+    base_vals: dict[str, float],
+    coupling: bool,
+) -> tuple[float, float]:
+    """Signature test: held-out gain of the model + effects in the equation error.
+
+    The body equation (M + dM) a2 = F(r, rdot, x2) is evaluated on the measured
+    (integrated) states; the linear parameters and the effect's are refitted by least
+    squares on the fit part, the error is compared on the held-out part. Returns
+    (relative reduction of held-out mean square, t statistic) against the linear model.
+    """
+    model = _model(effects, coupling)
+    mass = base_vals.get("body_mass_kg", 1.0)
+
+    def stack(part: str):
+        rs, vs, xs, fs = [], [], [], []
+        for p in prepared:
+            d = getattr(p, part)
+            r, rdot, x2, a2 = _states(d)
+            rs.append(r + _static_offset(base_vals, d.added_mass_kg))
+            vs.append(rdot)
+            xs.append(x2)
+            fs.append((mass + d.added_mass_kg) * a2 + d.added_mass_kg * GRAVITY)
+        return (np.concatenate(rs), np.concatenate(vs), np.concatenate(xs), np.concatenate(fs))
+
+    fit, val = stack("fit"), stack("val")
+    keys = model.param_keys
+    start = np.array(
+        [base_vals.get(k, spec.typical) for k, spec in zip(keys, model.specs, strict=True)]
+    )
+    lo, hi = model.lower, model.upper
+    for i, (k, spec) in enumerate(zip(keys, model.specs, strict=True)):
+        if spec.name == "gap_m":
+            start[i] = float(np.quantile(-fit[0], 0.95))
+        elif spec.name in ("compression_damping_ns_per_m", "rebound_damping_ns_per_m"):
+            start[i] = base_vals.get("linear_damper.suspension_damping_ns_per_m", spec.typical)
+        elif spec.name == "cubic_stiffness_n_per_m3":
+            start[i] = 0.0
+        elif spec.name == "friction_force_n":
+            start[i] = 0.05 * float(np.std(fit[3]))
+        elif spec.name == "stiffness_n_per_m" and k.startswith("bump_stop"):
+            start[i] = 5.0 * base_vals.get("linear_spring.suspension_stiffness_n_per_m", 2e4)
+    step = 1e-6 * np.maximum(np.abs(start), 1.0)
+    start = np.where(np.isfinite(lo) & (start <= lo), lo + step, start)
+    start = np.where(np.isfinite(hi) & (start >= hi), hi - step, start)
+
+    def res(th, data):
+        f, _, _ = model.force(data[0], data[1], data[2], th)
+        return data[3] - f
+
+    def jac(th, data):
+        _, _, dth = model.force(data[0], data[1], data[2], th)
+        return -dth
+
+    sol = optimize.least_squares(
+        res, start, jac=jac, bounds=(lo, hi), args=(fit,), x_scale="jac", max_nfev=60
+    )
+    base_model = _model((), coupling)
+    th_b = np.array([base_vals.get(k, 0.0) for k in base_model.param_keys])
+    sol_b = optimize.least_squares(
+        lambda th, d: d[3] - base_model.force(d[0], d[1], d[2], th)[0],
+        th_b,
+        jac=lambda th, d: -base_model.force(d[0], d[1], d[2], th)[2],
+        args=(fit,),
+        x_scale="jac",
+        max_nfev=30,
+    )
+    e_b = val[3] - base_model.force(val[0], val[1], val[2], sol_b.x)[0]
+    e_c = res(sol.x, val)
+    gain = 1.0 - float(np.mean(e_c**2) / np.mean(e_b**2))
+    return gain, paired_block_t(e_b, e_c)
+
+
+# ----------------------------------------------------------------------------- result
+@dataclass
+class Diagnosis:
+    """Everything ``fielddiag diagnose`` reports; :meth:`to_dict` is its JSON."""
+
+    mode: str  # "pair" or "single"
+    drives: list[Drive]
+    band_hz: tuple[float, float]
+    baseline: _Fit
+    chosen: _Fit
+    comparison: Comparison | None
+    fits: list[_Fit]
+    screening: dict[str, dict[str, float]]
+    windows: list[dict]
+    excess_band_hz: tuple[float, float] | None
+    departure: DepartureMap | None
+    region: dict | None
+    unexplained: dict | None
+    warnings: list[data_checks.DataWarning]
+    residual_psd: dict[str, list[float]] = field(default_factory=dict)
+
+    @property
+    def verdict(self) -> str:
+        missing = self.chosen is not self.baseline or self.unexplained is not None
+        return "missing_physics" if missing else "adequate"
+
+    def _finding(self, effect: str) -> dict:
+        c = self.chosen.candidate
+        prefix = effect + "."
+        params = {k[len(prefix) :]: v for k, v in c.values.items() if k.startswith(prefix)}
+        stds = {k[len(prefix) :]: v for k, v in c.std.items() if k.startswith(prefix)}
+        if self.mode == "single":  # per unit sprung mass
+            params = {_per_kg(k): v for k, v in params.items()}
+            stds = {_per_kg(k): v for k, v in stds.items()}
+        base = self.baseline.candidate
+        explained = 1.0 - c.mse_validation / base.mse_validation
+        return {
+            "effect": effect,
+            "confidence": confidence(self.comparison, explained / max(explained, 0.25)),
+            "parameters": params,
+            "std": stds,
+            "where": self._where(),
+            "explanation": explain(effect, params, base.values, c.values, self.mode),
+        }
+
+    def _where(self) -> dict:
+        return {
+            "band_hz": list(self.excess_band_hz) if self.excess_band_hz else None,
+            "time_windows_s": self.windows,
+            "region": self.region,
+        }
+
+    def to_dict(self) -> dict:
+        base, chosen = self.baseline.candidate, self.chosen.candidate
+        adequate = self.verdict == "adequate"
+        findings = [] if chosen is base else [self._finding(e) for e in chosen.effects]
+        if self.unexplained is not None:
+            findings.append(
+                {**self.unexplained, "where": {**self._where(), **self.unexplained["where"]}}
+            )
+        aug = base if adequate or chosen is base else chosen
+        return {
+            "mode": self.mode,
+            "verdict": self.verdict,
+            "baseline": {"nrmse": base.nrmse_fit, "nrmse_validation": base.nrmse_validation},
+            "augmented": {"nrmse": aug.nrmse_fit, "nrmse_validation": aug.nrmse_validation},
+            "findings": findings,
+            "warnings": [w.to_dict() for w in self.warnings],
+            "linear_model": _linear_summary(base.values, self.mode),
+            "band_hz": list(self.band_hz),
+            "candidates": [
+                {
+                    "effects": list(f.effects),
+                    "nrmse_validation": f.candidate.nrmse_validation,
+                    "t_vs_linear": compare(base, f.candidate).t,
+                    "physical": f.candidate.physical,
+                    "parameters": {
+                        k: v for k, v in f.candidate.values.items() if k.split(".")[0] in f.effects
+                    },
+                }
+                for f in self.fits
+                if f is not self.baseline
+            ],
+            "screening": self.screening,
+            "sessions": [
+                {
+                    "label": d.label,
+                    "name": d.name,
+                    "added_mass_kg": d.added_mass_kg,
+                    "duration_s": d.wheel_accel_mps2.size / d.sample_rate_hz,
+                }
+                for d in self.drives
+            ],
+            "holdout": "last 30 % of every drive",
+        }
+
+
+def _per_kg(name: str) -> str:
+    return name if name == "gap_m" else f"{name}_per_kg"
+
+
+def _linear_summary(vals: dict[str, float], mode: str) -> dict[str, float]:
+    keys = {
+        "linear_spring.suspension_stiffness_n_per_m": "suspension_stiffness_n_per_m",
+        "linear_damper.suspension_damping_ns_per_m": "suspension_damping_ns_per_m",
+        "coupling_spring.coupling_stiffness_n_per_m": "coupling_stiffness_n_per_m",
+        "body_mass_kg": "sprung_mass_kg",
+    }
+    out = {}
+    for k, name in keys.items():
+        if k in vals:
+            out[name if mode == "pair" or name == "sprung_mass_kg" else _per_kg(name)] = vals[k]
+    return out
+
+
+def explain(
+    effect: str,
+    params: dict[str, float],
+    base: dict[str, float],
+    chosen: dict[str, float],
+    mode: str,
+) -> str:
+    """A sentence a technician can act on."""
+    per = "" if mode == "pair" else " per kg of sprung mass"
+    c_lin = base.get("linear_damper.suspension_damping_ns_per_m")
+    k_lin = base.get("linear_spring.suspension_stiffness_n_per_m")
+    c_new = chosen.get("linear_damper.suspension_damping_ns_per_m")
+    k_new = chosen.get("linear_spring.suspension_stiffness_n_per_m")
+    if effect == "coulomb_friction":
+        f = next(iter(params.values()))
+        hid = ""
+        if c_lin and c_new:
+            hid = (
+                f": the linear fit was hiding it as {100 * (c_lin / c_new - 1):.0f} % extra damping"
+            )
+        return (
+            f"dry friction of about {f:.3g} N{per} in the strut{hid}. Check the strut "
+            "top mount, bushings and damper seals for binding"
+        )
+    if effect == "cubic_stiffness":
+        k3 = next(iter(params.values()))
+        hid = ""
+        if k_lin and k_new:
+            hid = (
+                f"; the linear fit was reporting {100 * (k_lin / k_new - 1):+.0f} % "
+                "stiffness to make up for it"
+            )
+        return (
+            f"progressive spring: the stiffness rises with travel (cubic term {k3:.3g} "
+            f"N/m3{per}){hid}. Expected for progressive-rate springs; otherwise check "
+            "for a spring touching its seat or the helper spring engaging"
+        )
+    if effect == "bump_stop":
+        gap = params.get("gap_m", float("nan"))
+        k = params.get("stiffness_n_per_m", params.get("stiffness_n_per_m_per_kg", float("nan")))
+        return (
+            f"bump stop reached {1000 * gap:.0f} mm into compression from the unloaded ride "
+            f"height, stiffness {k:.3g} N/m{per}; it acts only over the largest bumps. "
+            "Check ride height and the bump-stop rubber if it engages too early"
+        )
+    if effect == "asymmetric_damping":
+        cc = params.get(
+            "compression_damping_ns_per_m",
+            params.get("compression_damping_ns_per_m_per_kg", float("nan")),
+        )
+        cr = params.get(
+            "rebound_damping_ns_per_m", params.get("rebound_damping_ns_per_m_per_kg", float("nan"))
+        )
+        return (
+            f"the damper is asymmetric: {cc:.4g} N s/m{per} in compression, {cr:.4g} in "
+            f"rebound (ratio {cr / cc:.2f}); a single damping value misrepresents it"
+        )
+    return effect
+
+
+# ----------------------------------------------------------------------------- main
+def _data_warnings(drives: Sequence[Drive]) -> list[data_checks.DataWarning]:
+    out = []
+    for d in drives:
+        for ch, x in (
+            ("wheel accelerometer", d.wheel_accel_mps2),
+            ("body accelerometer", d.body_accel_mps2),
+        ):
+            for w in (
+                data_checks.check_clipping(x, channel=ch, session=d.label),
+                data_checks.check_bias_drift(d.time_s, x, channel=ch, session=d.label),
+            ):
+                if w is not None:
+                    out.append(w)
+    return out
+
+
+def _locate(
+    base: _Fit, prepared: Sequence[_Prepared], rate_hz: float
+) -> tuple[list[dict], tuple[float, float] | None, dict[str, list[float]]]:
+    windows = []
+    psds = []
+    for (_, _measured, residual, t), p in zip(base.runs, prepared, strict=True):
+        for w in residual_windows(t, residual, rate_hz, window_s=1.0, threshold=2.5, max_windows=4):
+            windows.append(
+                {
+                    "session": p.drive.label,
+                    "start_s": w.start_s,
+                    "end_s": w.end_s,
+                    "rms_ratio": w.rms_ratio,
+                }
+            )
+        psds.append(residual_psd(residual, rate_hz))
+    windows.sort(key=lambda w: -w["rms_ratio"])
+    f = psds[0][0]
+    mean_psd = np.mean([np.interp(f, fp, pp) for fp, pp in psds], axis=0)
+    # the noise floor of the residual: its level at the top of the band
+    band = base.result.band_hz or [f[1], f[-1]]
+    top = (f > 0.7 * band[1]) & (f <= band[1])
+    noise = float(np.median(mean_psd[top])) if np.any(top) else 0.0
+    exb = excess_band(f, mean_psd, 3.0 * noise, band_hz=(band[0], band[1]))
+    return windows[:8], exb, {"freq_hz": f.tolist(), "psd": mean_psd.tolist(), "noise_psd": noise}
+
+
+def _departure(
+    fit: _Fit, prepared: Sequence[_Prepared], coupling: bool
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Equation-error departure of the fitted model on the measured states, all data."""
+    model = fit.candidate.extra["model"]
+    vals = fit.candidate.values
+    th = np.array([vals.get(k, 0.0) for k in model.param_keys])
+    mass = vals.get("body_mass_kg", 1.0)
+    rs, vs, ds, is_val = [], [], [], []
+    for p in prepared:
+        for part, flag in ((p.fit, False), (p.val, True)):
+            r, rdot, x2, a2 = _states(part)
+            r = r + _static_offset(vals, part.added_mass_kg)
+            f, _, _ = model.force(r, rdot, x2, th)
+            rs.append(r)
+            vs.append(rdot)
+            ds.append((mass + part.added_mass_kg) * a2 + part.added_mass_kg * GRAVITY - f)
+            is_val.append(np.full(r.size, flag))
+    return np.concatenate(rs), np.concatenate(vs), np.concatenate(ds), np.concatenate(is_val)
+
+
+def _unexplained(
+    fit: _Fit, prepared: Sequence[_Prepared], coupling: bool
+) -> tuple[dict | None, DepartureMap]:
+    """Force left that depends on (r, rdot) but that the chosen model does not describe."""
+    r, v, dep, is_val = _departure(fit, prepared, coupling)
+    dmap = departure_map(r[~is_val], v[~is_val], dep[~is_val], bins=12)
+    i = np.clip(np.searchsorted(dmap.r_edges_m, r[is_val]) - 1, 0, dmap.mean.shape[0] - 1)
+    j = np.clip(np.searchsorted(dmap.rdot_edges_mps, v[is_val]) - 1, 0, dmap.mean.shape[1] - 1)
+    ok = dmap.count[i, j] >= 30
+    pred = np.where(ok, np.nan_to_num(dmap.mean[i, j]), 0.0)
+    e = dep[is_val] - np.mean(dep[~is_val])
+    t = paired_block_t(e, e - pred)
+    gain = 1.0 - float(np.mean((e - pred) ** 2) / np.mean(e**2))
+    full_map = departure_map(r, v, dep, bins=12)
+    if t < 4.0 or gain < 0.08:
+        return None, full_map
+    reg = dmap.region()
+    return {
+        "effect": "unexplained",
+        "confidence": float(min(1.0, 2.0 * gain)),
+        "parameters": {},
+        "where": {"region": reg},
+        "explanation": (
+            f"{100 * gain:.0f} % of the force the model leaves unexplained depends on "
+            "suspension travel and speed in a way none of the known effects (dry friction, "
+            "progressive spring, bump stop, asymmetric damper) describes; see the departure "
+            "map for where it acts"
+        ),
+    }, full_map
+
+
+def diagnose_drives(
+    drives: Sequence[Drive],
+    *,
+    effects: Sequence[str] = EFFECT_LIBRARY,
+    band_hz: tuple[float, float] | None = None,
+    holdout_fraction: float = 0.3,
+    analysis_rate_hz: float = 125.0,
+    max_full_fits: int = 5,
+    progress: Callable[[str], None] | None = None,
+) -> Diagnosis:
+    """Diagnose one drive (per unit mass) or a before/after pair (absolute).
+
+    Parameters
+    ----------
+    drives : sequence of Drive
+        One drive, or two with different added masses.
+    effects : sequence of str
+        The candidate effects.
+    band_hz : (lo, hi) or None
+        Valid band; default from the sample rate and length.
+    holdout_fraction : float
+        Last part of every drive held out from the fits and used to choose.
+    analysis_rate_hz : float
+        The integrated signals are resampled to this rate (>= 4x the band's top).
+    max_full_fits : int
+        Grey-box fits of candidates after screening (the rest are screened only).
+    progress : callable or None
+        Called with a line of text at each step.
+    """
+    say = progress or (lambda _msg: None)
+    drives = list(drives)
+    if len(drives) not in (1, 2):
+        raise FieldDiagError("diagnose takes one drive or a before/after pair")
+    mode = "pair" if len(drives) == 2 else "single"
+    if mode == "pair" and drives[0].added_mass_kg == drives[1].added_mass_kg:
+        raise FieldDiagError(
+            "both drives have the same added mass; give --added-mass (the mass added for the "
+            "second drive) or diagnose one drive at a time"
+        )
+    fs = min(d.sample_rate_hz for d in drives)
+    n = min(d.wheel_accel_mps2.size for d in drives)
+    band = band_hz or default_band_hz(fs, int(n * (1 - holdout_fraction)))
+    rate = max(analysis_rate_hz, 4.0 * band[1])
+    rate = min(rate, fs)
+    say("checking the data")
+    warnings = _data_warnings(drives)
+    prepared = [_prepare(d, band, rate, holdout_fraction) for d in drives]
+    fit_rate = prepared[0].full.sample_rate_hz
+
+    say("fitting the linear model")
+    base = _grey_fit((), prepared, True, None, substeps=2)
+    k3 = base.candidate.values.get("coupling_spring.coupling_stiffness_n_per_m", 0.0)
+    k3s = base.candidate.std.get("coupling_spring.coupling_stiffness_n_per_m", np.inf)
+    coupling = bool(abs(k3) > 4.0 * k3s)
+    if not coupling:
+        base = _grey_fit((), prepared, False, _initial_from(base), substeps=2)
+    base_vals = base.candidate.values
+    windows, exband, psd = _locate(base, prepared, fit_rate)
+
+    say("testing each effect against the residual's signature")
+    combos = [(e,) for e in effects] + list(itertools.combinations(effects, 2))
+    screening = {}
+    for combo in combos:
+        try:
+            gain, t = _equation_error_gain(combo, prepared, base_vals, coupling)
+        except (ValueError, np.linalg.LinAlgError):
+            gain, t = -np.inf, -np.inf
+        screening["+".join(combo)] = {"gain": gain, "t": t}
+    singles = sorted(effects, key=lambda e: -screening[e]["gain"])
+    promising = [e for e in singles if screening[e]["gain"] > 0.0]
+    chosen_combos: list[tuple[str, ...]] = [(e,) for e in promising[:2]]
+    top3 = promising[:3]
+    pairs = sorted(
+        itertools.combinations(top3, 2),
+        key=lambda c: (
+            -screening["+".join(sorted(c, key=effects.index))]["gain"]
+            if "+".join(sorted(c, key=effects.index)) in screening
+            else 0.0
+        ),
+    )
+    for c in pairs:
+        key = tuple(sorted(c, key=effects.index))
+        if key not in chosen_combos:
+            chosen_combos.append(key)
+    chosen_combos = chosen_combos[:max_full_fits]
+
+    fits = [base]
+    start = _initial_from(base)
+    for combo in chosen_combos:
+        say(f"fitting the model with {' + '.join(combo)}")
+        try:
+            fits.append(_grey_fit(combo, prepared, coupling, start, substeps=2))
+        except (FieldDiagError, np.linalg.LinAlgError, FloatingPointError) as exc:
+            say(f"  {' + '.join(combo)} could not be fitted: {exc}")
+    sel = select_model(base.candidate, [f.candidate for f in fits[1:]])
+    chosen = next(f for f in fits if f.candidate is sel.chosen)
+    say("looking for structure no effect explains")
+    unexplained, dmap = _unexplained(chosen, prepared, coupling)
+    region = None
+    if dmap is not None:
+        reg = dmap.region()
+        region = reg
+    return Diagnosis(
+        mode=mode,
+        drives=drives,
+        band_hz=band,
+        baseline=base,
+        chosen=chosen,
+        comparison=sel.comparison,
+        fits=fits,
+        screening=screening,
+        windows=windows,
+        excess_band_hz=exband,
+        departure=dmap,
+        region=region,
+        unexplained=unexplained,
+        warnings=warnings,
+        residual_psd=psd,
+    )
+
+
+def diagnose_sessions(
+    paths: Sequence[str | os.PathLike],
+    *,
+    added_mass_kg: float | None = None,
+    progress: Callable[[str], None] | None = None,
+    **kw: Any,
+) -> Diagnosis:
+    """Diagnose one session or a before/after pair of session files.
+
+    ``added_mass_kg`` is the mass added for the second drive; None reads it from the
+    sessions' ``added_mass_kg`` attributes.
+    """
+    paths = [Path(p) for p in paths]
+    if len(paths) == 1:
+        return diagnose_drives([read_drive(paths[0], "drive", 0.0)], progress=progress, **kw)
+    before = read_drive(paths[0], "before")
+    after = read_drive(paths[1], "after")
+    if added_mass_kg is not None:
+        after.added_mass_kg = before.added_mass_kg + float(added_mass_kg)
+    return diagnose_drives([before, after], progress=progress, **kw)
