@@ -110,3 +110,109 @@ def check_bias_drift(
         channel,
         change,
     )
+
+
+def _model_ratio(freq_hz, measured, model, coherence, band_hz, min_coherence):
+    f = np.asarray(freq_hz, float)
+    ok = (f >= band_hz[0]) & (f <= band_hz[1]) & (np.asarray(coherence) >= min_coherence)
+    ok &= np.abs(model) > 0
+    return f[ok], np.asarray(measured)[ok] / np.asarray(model)[ok]
+
+
+def check_gain_change(
+    transmissibility: list[dict],
+    band_hz: tuple[float, float],
+    *,
+    min_coherence: float = 0.9,
+    min_change: float = 0.03,
+) -> DataWarning | None:
+    """A sensor remounted with another gain between the drives.
+
+    The model fitted to both drives shares one car; a gain change of one channel scales
+    one drive's whole transmissibility by a constant, which shows as the measured/model
+    magnitude ratio sitting flat at a different level in the two drives. Physics does not
+    do that (mass, friction or a progressive spring change the shape, not the level).
+
+    Parameters
+    ----------
+    transmissibility : list of dict
+        Per drive: ``freq_hz``, ``measured`` (complex, e.g. H-v), ``model`` (complex),
+        ``coherence``, ``label``.
+    """
+    levels = []
+    for tr in transmissibility:
+        f, ratio = _model_ratio(
+            tr["freq_hz"], tr["measured"], tr["model"], tr["coherence"], band_hz, min_coherence
+        )
+        if f.size < 8:
+            return None
+        lg = np.log(np.abs(ratio))
+        # robust level and its uncertainty (lines are nearly independent in Welch estimates)
+        med = float(np.median(lg))
+        mad = float(np.median(np.abs(lg - med))) * 1.4826
+        levels.append((tr["label"], med, mad / np.sqrt(f.size / 4.0), float(np.std(lg))))
+    if len(levels) != 2:
+        return None
+    (la, a, sa, spread_a), (lb, b, sb, spread_b) = levels
+    change = float(np.exp(b - a) - 1.0)
+    if abs(change) < min_change or abs(b - a) < 4.0 * np.hypot(sa, sb):
+        return None
+    # a flat offset: the ratio's scatter within each drive is small against the jump
+    if abs(b - a) < 1.5 * max(spread_a, spread_b):
+        return None
+    return DataWarning(
+        "sensor_gain_changed",
+        f"the body/wheel transmissibility of the {lb} drive sits {100 * change:+.1f} % off the "
+        f"{la} drive at every frequency, as if a sensor's gain changed between the drives "
+        "(remounted, other range, other calibration). Check both sensors' calibration and "
+        "mounting; the mass identification is biased by it",
+        lb,
+        "",
+        change,
+    )
+
+
+def check_time_offset(
+    transmissibility: list[dict],
+    band_hz: tuple[float, float],
+    *,
+    min_coherence: float = 0.9,
+    min_offset_s: float = 0.001,
+) -> DataWarning | None:
+    """A time offset between the wheel and body channels.
+
+    A delay tau of the body channel multiplies the measured transmissibility by
+    exp(-j 2 pi f tau): a phase error growing linearly with frequency that no spring,
+    damper or mass produces over a wide band.
+    """
+    fs_, phs, ws = [], [], []
+    for tr in transmissibility:
+        f, ratio = _model_ratio(
+            tr["freq_hz"], tr["measured"], tr["model"], tr["coherence"], band_hz, min_coherence
+        )
+        fs_.append(f)
+        phs.append(np.angle(ratio))
+        ws.append(np.ones_like(f))
+    f = np.concatenate(fs_)
+    ph = np.concatenate(phs)
+    if f.size < 10 or np.ptp(f) < 3.0:
+        return None
+    a = np.column_stack([-2 * np.pi * f, np.ones_like(f)])
+    coef, *_ = np.linalg.lstsq(a, ph, rcond=None)
+    resid = ph - a @ coef
+    dof = max(f.size - 2, 1)
+    cov = np.linalg.inv(a.T @ a) * float(resid @ resid) / dof
+    tau, tau_std = float(coef[0]), float(np.sqrt(cov[0, 0]) * 2.0)  # x2: lines correlate
+    if abs(tau) < min_offset_s or abs(tau) < 4.0 * tau_std:
+        return None
+    which = "body channel lags" if tau > 0 else "wheel channel lags"
+    return DataWarning(
+        "channel_time_offset",
+        f"the {which} the other by about {1000 * abs(tau):.1f} ms (a phase error growing "
+        "with frequency that no suspension produces). Check that both channels are sampled "
+        "together (same DAQ clock, same filter settings) or correct the offset before "
+        "diagnosing",
+        "",
+        "",
+        tau,
+    )

@@ -246,79 +246,114 @@ def _static_offset(base_vals: dict[str, float], added_mass_kg: float) -> float:
     return -added_mass_kg * GRAVITY / k
 
 
-def _equation_error_gain(
+@dataclass
+class _EquationErrorFit:
+    """A model fitted to the body equation on the measured states (fast, for screening)."""
+
+    values: dict[str, float]  # model keys, plus body_mass_kg in pair mode
+    residual_validation: np.ndarray
+
+
+def _equation_error_fit(
     effects: Sequence[str],
     prepared: Sequence[_Prepared],
-    base_vals: dict[str, float],
     coupling: bool,
-) -> tuple[float, float]:
-    """Signature test: held-out gain of the model + effects in the equation error.
+    absolute: bool,
+    start: dict[str, float] | None = None,
+) -> _EquationErrorFit:
+    """Fit (M + dM) a2 + dM g = F(r + r0, rdot, x2) on the fit part of every drive.
 
-    The body equation (M + dM) a2 = F(r, rdot, x2) is evaluated on the measured
-    (integrated) states; the linear parameters and the effect's are refitted by least
-    squares on the fit part, the error is compared on the held-out part. Returns
-    (relative reduction of held-out mean square, t statistic) against the linear model.
+    ``r`` is the measured (integrated, band-limited) suspension extension; ``r0`` the static
+    extension of each loaded drive (a free parameter per drive with added mass, fixed by
+    the ``dM g`` balance), so nonlinear terms see the travel where they act. In absolute
+    mode the mass is fitted too; otherwise everything is per unit mass (M = 1).
     """
     model = _model(effects, coupling)
-    mass = base_vals.get("body_mass_kg", 1.0)
+    start = start or {}
+    loaded = [k for k, p in enumerate(prepared) if p.fit.added_mass_kg != 0.0] if absolute else []
 
     def stack(part: str):
-        rs, vs, xs, fs = [], [], [], []
-        for p in prepared:
+        cols = {"r": [], "v": [], "x": [], "a": [], "dm": [], "sess": []}
+        for k, p in enumerate(prepared):
             d = getattr(p, part)
             r, rdot, x2, a2 = _states(d)
-            rs.append(r + _static_offset(base_vals, d.added_mass_kg))
-            vs.append(rdot)
-            xs.append(x2)
-            fs.append((mass + d.added_mass_kg) * a2 + d.added_mass_kg * GRAVITY)
-        return (np.concatenate(rs), np.concatenate(vs), np.concatenate(xs), np.concatenate(fs))
+            cols["r"].append(r)
+            cols["v"].append(rdot)
+            cols["x"].append(x2)
+            cols["a"].append(a2)
+            cols["dm"].append(np.full(r.size, d.added_mass_kg))
+            cols["sess"].append(np.full(r.size, k))
+        return {key: np.concatenate(v) for key, v in cols.items()}
 
     fit, val = stack("fit"), stack("val")
-    keys = model.param_keys
-    start = np.array(
-        [base_vals.get(k, spec.typical) for k, spec in zip(keys, model.specs, strict=True)]
-    )
-    lo, hi = model.lower, model.upper
-    for i, (k, spec) in enumerate(zip(keys, model.specs, strict=True)):
-        if spec.name == "gap_m":
-            start[i] = float(np.quantile(-fit[0], 0.95))
-        elif spec.name in ("compression_damping_ns_per_m", "rebound_damping_ns_per_m"):
-            start[i] = base_vals.get("linear_damper.suspension_damping_ns_per_m", spec.typical)
-        elif spec.name == "cubic_stiffness_n_per_m3":
-            start[i] = 0.0
-        elif spec.name == "friction_force_n":
-            start[i] = 0.05 * float(np.std(fit[3]))
-        elif spec.name == "stiffness_n_per_m" and k.startswith("bump_stop"):
-            start[i] = 5.0 * base_vals.get("linear_spring.suspension_stiffness_n_per_m", 2e4)
-    step = 1e-6 * np.maximum(np.abs(start), 1.0)
-    start = np.where(np.isfinite(lo) & (start <= lo), lo + step, start)
-    start = np.where(np.isfinite(hi) & (start >= hi), hi - step, start)
+    n_th = model.n_params
+    th0 = []
+    for key, spec in zip(model.param_keys, model.specs, strict=True):
+        v = start.get(key)
+        if v is None or not np.isfinite(v):
+            if spec.name == "gap_m":
+                v = float(np.quantile(-fit["r"], 0.95))
+            elif spec.name in ("compression_damping_ns_per_m", "rebound_damping_ns_per_m"):
+                v = start.get("linear_damper.suspension_damping_ns_per_m", spec.typical)
+            elif spec.name in ("cubic_stiffness_n_per_m3", "coupling_stiffness_n_per_m"):
+                v = 0.0
+            elif spec.name == "friction_force_n":
+                v = 0.02 * spec.typical
+            else:
+                v = spec.typical
+            if not absolute and spec.scales_with_force:
+                v = v / 380.0 if key not in start else v
+        th0.append(v)
+    m0 = start.get("body_mass_kg", 380.0) if absolute else 1.0
+    k0 = start.get("linear_spring.suspension_stiffness_n_per_m", 2.4e4)
+    r00 = [-prepared[k].fit.added_mass_kg * GRAVITY / max(k0, 1.0) for k in loaded]
+    z0 = np.array([*th0, *([m0] if absolute else []), *r00], float)
+    lo = np.concatenate([model.lower, [1.0] if absolute else [], np.full(len(loaded), -0.5)])
+    hi = np.concatenate([model.upper, [1e5] if absolute else [], np.full(len(loaded), 0.5)])
+    step = 1e-6 * np.maximum(np.abs(z0), 1.0)
+    z0 = np.where(np.isfinite(lo) & (z0 <= lo), lo + step, z0)
+    z0 = np.where(np.isfinite(hi) & (z0 >= hi), hi - step, z0)
 
-    def res(th, data):
-        f, _, _ = model.force(data[0], data[1], data[2], th)
-        return data[3] - f
+    def split(z):
+        th = z[:n_th]
+        m = z[n_th] if absolute else 1.0
+        r0 = np.zeros(len(prepared))
+        for j, k in enumerate(loaded):
+            r0[k] = z[n_th + (1 if absolute else 0) + j]
+        return th, m, r0
 
-    def jac(th, data):
-        _, _, dth = model.force(data[0], data[1], data[2], th)
-        return -dth
+    def residual(z, d, want_jac=False):
+        # in acceleration units: a2 + dM g / (M + dM) - F / (M + dM). (In force units the
+        # measured a2 would multiply the fitted mass: errors in variables, and a fit that
+        # shrinks the mass to shrink the residual.)
+        th, m, r0 = split(z)
+        off = r0[d["sess"]]
+        f, dst, dth = model.force(d["r"] + off, d["v"], d["x"], th)
+        g = GRAVITY if absolute else 0.0
+        mt = m + d["dm"]
+        e = d["a"] + (d["dm"] * g - f) / mt
+        if not want_jac:
+            return e
+        cols = [-dth / mt[:, None]]
+        if absolute:
+            cols.append((-(d["dm"] * g - f) / mt**2)[:, None])
+        for k in loaded:
+            cols.append((-dst[:, 0] / mt * (d["sess"] == k))[:, None])
+        return e, np.hstack(cols)
 
     sol = optimize.least_squares(
-        res, start, jac=jac, bounds=(lo, hi), args=(fit,), x_scale="jac", max_nfev=60
-    )
-    base_model = _model((), coupling)
-    th_b = np.array([base_vals.get(k, 0.0) for k in base_model.param_keys])
-    sol_b = optimize.least_squares(
-        lambda th, d: d[3] - base_model.force(d[0], d[1], d[2], th)[0],
-        th_b,
-        jac=lambda th, d: -base_model.force(d[0], d[1], d[2], th)[2],
-        args=(fit,),
+        lambda z: residual(z, fit),
+        z0,
+        jac=lambda z: residual(z, fit, True)[1],
+        bounds=(lo, hi),
         x_scale="jac",
-        max_nfev=30,
+        max_nfev=80,
     )
-    e_b = val[3] - base_model.force(val[0], val[1], val[2], sol_b.x)[0]
-    e_c = res(sol.x, val)
-    gain = 1.0 - float(np.mean(e_c**2) / np.mean(e_b**2))
-    return gain, paired_block_t(e_b, e_c)
+    th, m, _ = split(sol.x)
+    values = dict(zip(model.param_keys, (float(v) for v in th), strict=True))
+    if absolute:
+        values["body_mass_kg"] = float(m)
+    return _EquationErrorFit(values, residual(sol.x, val))
 
 
 # ----------------------------------------------------------------------------- result
@@ -343,9 +378,14 @@ class Diagnosis:
     residual_psd: dict[str, list[float]] = field(default_factory=dict)
 
     @property
+    def blocked(self) -> bool:
+        """A data problem makes any suspension finding suspect."""
+        return any(w.kind in BLOCKING_WARNINGS for w in self.warnings)
+
+    @property
     def verdict(self) -> str:
         missing = self.chosen is not self.baseline or self.unexplained is not None
-        return "missing_physics" if missing else "adequate"
+        return "missing_physics" if missing and not self.blocked else "adequate"
 
     def _finding(self, effect: str) -> dict:
         c = self.chosen.candidate
@@ -381,6 +421,17 @@ class Diagnosis:
             findings.append(
                 {**self.unexplained, "where": {**self._where(), **self.unexplained["where"]}}
             )
+        warnings = [w.to_dict() for w in self.warnings]
+        if self.blocked and findings:
+            withheld = ", ".join(f["effect"] for f in findings)
+            warnings.append(
+                {
+                    "kind": "findings_withheld",
+                    "message": f"the mismatch ({withheld}) is not blamed on the suspension while "
+                    "the data problems above stand; fix the recording and diagnose again",
+                }
+            )
+            findings = []
         aug = base if adequate or chosen is base else chosen
         return {
             "mode": self.mode,
@@ -388,7 +439,7 @@ class Diagnosis:
             "baseline": {"nrmse": base.nrmse_fit, "nrmse_validation": base.nrmse_validation},
             "augmented": {"nrmse": aug.nrmse_fit, "nrmse_validation": aug.nrmse_validation},
             "findings": findings,
-            "warnings": [w.to_dict() for w in self.warnings],
+            "warnings": warnings,
             "linear_model": _linear_summary(base.values, self.mode),
             "band_hz": list(self.band_hz),
             "candidates": [
@@ -511,6 +562,47 @@ def _data_warnings(drives: Sequence[Drive]) -> list[data_checks.DataWarning]:
                 if w is not None:
                     out.append(w)
     return out
+
+
+def _transmissibility_warnings(drives: Sequence[Drive]) -> list[data_checks.DataWarning]:
+    """Gain change between drives and channel time offset, from the identification's
+    transmissibilities against its fitted linear model."""
+    from fielddiag.identify import Recording, identify_recordings
+
+    recs = [
+        Recording(
+            d.wheel_accel_mps2,
+            d.body_accel_mps2,
+            d.sample_rate_hz,
+            added_mass_kg=d.added_mass_kg,
+            label=d.label,
+        )
+        for d in drives
+    ]
+    try:
+        ident = identify_recordings(
+            recs[0], recs[1], drives[1].added_mass_kg - drives[0].added_mass_kg
+        )
+    except FieldDiagError as exc:
+        kind = "too_little_excitation" if "excitation" in str(exc) else "identification_refused"
+        return [data_checks.DataWarning(kind, f"the linear identification refused: {exc}")]
+    trs = [
+        {
+            "freq_hz": tr.freq_hz,
+            "measured": tr.hv.array(),
+            "model": tr.model.array(),
+            "coherence": tr.coherence,
+            "label": tr.label,
+        }
+        for tr in ident.transmissibility
+    ]
+    band = (ident.band_hz.low_hz, ident.band_hz.high_hz)
+    found = [data_checks.check_gain_change(trs, band), data_checks.check_time_offset(trs, band)]
+    return [w for w in found if w is not None]
+
+
+#: Data problems that make any physics found suspect: findings are withheld.
+BLOCKING_WARNINGS = ("sensor_gain_changed", "channel_time_offset", "clipping")
 
 
 def _locate(
@@ -638,6 +730,8 @@ def diagnose_drives(
     rate = min(rate, fs)
     say("checking the data")
     warnings = _data_warnings(drives)
+    if mode == "pair":
+        warnings += _transmissibility_warnings(drives)
     prepared = [_prepare(d, band, rate, holdout_fraction) for d in drives]
     fit_rate = prepared[0].full.sample_rate_hz
 
@@ -648,42 +742,41 @@ def diagnose_drives(
     coupling = bool(abs(k3) > 4.0 * k3s)
     if not coupling:
         base = _grey_fit((), prepared, False, _initial_from(base), substeps=2)
-    base_vals = base.candidate.values
     windows, exband, psd = _locate(base, prepared, fit_rate)
 
     say("testing each effect against the residual's signature")
+    absolute = mode == "pair"
+    ee_base = _equation_error_fit((), prepared, coupling, absolute)
     combos = [(e,) for e in effects] + list(itertools.combinations(effects, 2))
-    screening = {}
+    screening: dict[str, dict[str, float]] = {}
+    ee_fits: dict[tuple[str, ...], _EquationErrorFit] = {}
+    mse_b = float(np.mean(ee_base.residual_validation**2))
     for combo in combos:
         try:
-            gain, t = _equation_error_gain(combo, prepared, base_vals, coupling)
+            ee = _equation_error_fit(combo, prepared, coupling, absolute, ee_base.values)
         except (ValueError, np.linalg.LinAlgError):
-            gain, t = -np.inf, -np.inf
+            continue
+        ee_fits[combo] = ee
+        gain = 1.0 - float(np.mean(ee.residual_validation**2)) / mse_b
+        t = paired_block_t(ee_base.residual_validation, ee.residual_validation)
         screening["+".join(combo)] = {"gain": gain, "t": t}
-    singles = sorted(effects, key=lambda e: -screening[e]["gain"])
+    singles = sorted((e for e in effects if e in screening), key=lambda e: -screening[e]["gain"])
     promising = [e for e in singles if screening[e]["gain"] > 0.0]
     chosen_combos: list[tuple[str, ...]] = [(e,) for e in promising[:2]]
-    top3 = promising[:3]
-    pairs = sorted(
-        itertools.combinations(top3, 2),
-        key=lambda c: (
-            -screening["+".join(sorted(c, key=effects.index))]["gain"]
-            if "+".join(sorted(c, key=effects.index)) in screening
-            else 0.0
-        ),
-    )
-    for c in pairs:
-        key = tuple(sorted(c, key=effects.index))
-        if key not in chosen_combos:
-            chosen_combos.append(key)
+    pairs = [
+        c
+        for c in itertools.combinations(effects, 2)
+        if "+".join(c) in screening and set(c) <= set(promising[:3])
+    ]
+    pairs.sort(key=lambda c: -screening["+".join(c)]["gain"])
+    chosen_combos += pairs
     chosen_combos = chosen_combos[:max_full_fits]
 
     fits = [base]
-    start = _initial_from(base)
     for combo in chosen_combos:
         say(f"fitting the model with {' + '.join(combo)}")
         try:
-            fits.append(_grey_fit(combo, prepared, coupling, start, substeps=2))
+            fits.append(_grey_fit(combo, prepared, coupling, ee_fits[combo].values, substeps=2))
         except (FieldDiagError, np.linalg.LinAlgError, FloatingPointError) as exc:
             say(f"  {' + '.join(combo)} could not be fitted: {exc}")
     sel = select_model(base.candidate, [f.candidate for f in fits[1:]])
