@@ -7,6 +7,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 from fielddiag.cli import main
 from fielddiag.session import SessionReader
@@ -57,13 +58,19 @@ def test_errors_are_one_line_exit_1(tmp_path):
         assert len(proc.stderr.strip().splitlines()) == 1
 
 
-def test_demo_makes_a_pair_and_never_overwrites(tmp_path):
-    for _ in range(2):
-        proc = _cli("demo", "--out", str(tmp_path / "demo"), "--duration", "20", "--no-serve")
-        assert proc.returncode == 0, proc.stderr
-    runs = sorted((tmp_path / "demo").iterdir())
-    assert len(runs) == 2
-    for run in runs:
-        with SessionReader(run / "before.h5") as b, SessionReader(run / "after.h5") as a:
-            assert b.metadata.added_mass_kg == 0.0 and a.metadata.added_mass_kg > 0
-            assert b.n_samples == a.n_samples == 20 * 500
+def test_demo_records_identifies_and_diagnoses(tmp_path):
+    """The README's main job, shortened: recorded through the virtual devices in real time."""
+    proc = _cli("demo", "--out", str(tmp_path / "demo"), "--duration", "40", "--no-serve")
+    assert proc.returncode == 0, proc.stderr
+    (run,) = sorted((tmp_path / "demo").iterdir())
+    with SessionReader(run / "before.h5") as b, SessionReader(run / "after.h5") as a:
+        assert b.metadata.added_mass_kg == 0.0 and a.metadata.added_mass_kg == 60.0
+        assert b.counters["frames_lost"] == 0 and b.counters["frames_received"] > 0
+        assert b.duration_s == pytest.approx(40.0, abs=1.5)
+        assert {s.name for s in b.signals} >= {"vehicle_speed"}
+    ident = json.loads((run / "identify.json").read_text())
+    assert ident["sprung_mass_kg"]["value"] > 0 and ident["sprung_mass_kg"]["std"] > 0
+    diag = json.loads((run / "diagnose.json").read_text())
+    assert diag["verdict"] in ("adequate", "missing_physics")
+    assert (run / "plots" / "transmissibility.png").exists()
+    assert "4/4 dashboard skipped" in proc.stdout

@@ -62,11 +62,11 @@ def test_effect_outside_the_library_is_unexplained():
     assert where["region"] is not None and len(where["region"]["rdot_mps"]) == 2
 
 
-def test_sensor_gain_change_is_a_data_warning_not_physics():
-    out = _diagnose("sensor_gain_changed")
+def test_channel_time_offset_is_a_data_warning_not_physics():
+    out = _diagnose("channel_time_offset")
     kinds = [w["kind"] for w in out["warnings"]]
-    assert "sensor_gain_changed" in kinds
-    assert out["verdict"] == "adequate"
+    assert "channel_time_offset" in kinds
+    assert out["verdict"] == "adequate" and out["findings"] == []
 
 
 def test_cli_pair_with_plots(tmp_path, capsys):

@@ -1,0 +1,106 @@
+"""Diagnosis over the whole scenario catalogue (not a test: prints a score table).
+
+Method: every scenario of fielddiag.scenarios (concealed single effects at three sizes,
+pairs of effects, an effect outside the library, linear cars including noisy/short/200 Hz
+and bias-drifting ones, and sensor problems) is simulated from its seed and diagnosed with
+fielddiag.diagnose.engine.diagnose_drives. Printed per case: the verdict, the effects named
+(first = ranked first), parameter errors against the truth, the data warnings, the linear
+and augmented held-out NRMSE, and wall time. Then the scores: top-1 effect correct,
+false alarms on linear cases, worst parameter error, unexplained found, sensor problems
+flagged.
+
+Usage: python benchmarks/bench_diagnose.py [NAME ...]
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+from fielddiag.diagnose.engine import Drive, diagnose_drives
+from fielddiag.scenarios import SCENARIOS, simulate_scenario
+
+
+def run(name: str) -> dict:
+    sc = SCENARIOS[name]
+    before, after = simulate_scenario(sc)
+    drives = [
+        Drive(
+            lab, name, d.sample_rate_hz, 0.0, d.wheel_accel_mps2, d.body_accel_mps2, d.added_mass_kg
+        )
+        for lab, d in (("before", before), ("after", after))
+    ]
+    t0 = time.perf_counter()
+    out = diagnose_drives(drives).to_dict()
+    wall = time.perf_counter() - t0
+    named = [f["effect"] for f in out["findings"]]
+    errors = []
+    for eff, params in sc.effects:
+        f = next((f for f in out["findings"] if f["effect"] == eff), None)
+        for key, true in params.items():
+            if f is not None and key in f["parameters"]:
+                errors.append(abs(f["parameters"][key] / true - 1.0))
+    return {
+        "name": name,
+        "sc": sc,
+        "out": out,
+        "named": named,
+        "errors": errors,
+        "warnings": [w["kind"] for w in out["warnings"]],
+        "wall": wall,
+    }
+
+
+def main() -> None:
+    names = sys.argv[1:] or list(SCENARIOS)
+    print(__doc__)
+    rows = []
+    for name in names:
+        r = run(name)
+        rows.append(r)
+        out = r["out"]
+        err = f"{100 * max(r['errors']):.1f} %" if r["errors"] else "-"
+        print(
+            f"{name:<26} {out['verdict']:<16} named {','.join(r['named']) or '-':<40} "
+            f"param err {err:>7}  warn {','.join(r['warnings']) or '-':<32} NRMSE "
+            f"{out['baseline']['nrmse_validation']:.3f} -> "
+            f"{out['augmented']['nrmse_validation']:.3f}  {r['wall']:.0f} s",
+            flush=True,
+        )
+    effect_cases = [
+        r for r in rows if r["sc"].expected_effects and r["sc"].expected_effects != ("unexplained",)
+    ]
+    top1 = sum(bool(r["named"]) and r["named"][0] in r["sc"].expected_effects for r in effect_cases)
+    both = sum(set(r["sc"].expected_effects) <= set(r["named"]) for r in effect_cases)
+    linear = [
+        r
+        for r in rows
+        if not r["sc"].expected_effects
+        and not r["sc"].expected_warnings
+        or r["name"] == "linear_bias_drift"
+    ]
+    false_alarms = sum(r["out"]["verdict"] != "adequate" for r in linear)
+    errs = [e for r in effect_cases for e in r["errors"]]
+    outside = [r for r in rows if r["sc"].expected_effects == ("unexplained",)]
+    sensors = [r for r in rows if r["sc"].expected_warnings]
+    flagged = sum(set(r["sc"].expected_warnings) <= set(r["warnings"]) for r in sensors)
+    print()
+    print(f"top-1 effect correct      {top1}/{len(effect_cases)}")
+    print(f"all effects of a case named {both}/{len(effect_cases)}")
+    print(f"false alarms (linear)     {false_alarms}/{len(linear)}")
+    if errs:
+        errs.sort()
+        print(
+            f"parameter error           median {100 * errs[len(errs) // 2]:.1f} %, "
+            f"worst {100 * errs[-1]:.1f} %"
+        )
+    print(
+        f"outside the library -> unexplained "
+        f"{sum('unexplained' in r['named'] for r in outside)}/{len(outside)}"
+    )
+    print(f"sensor problems flagged   {flagged}/{len(sensors)}")
+    print(f"wall time                 {sum(r['wall'] for r in rows):.0f} s for {len(rows)} cases")
+
+
+if __name__ == "__main__":
+    main()
