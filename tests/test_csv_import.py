@@ -33,10 +33,34 @@ def test_import_round_trip_with_units(tmp_path, capsys):
     src = tmp_path / "drive.csv"
     t, w, b, v = _good_csv(src)
     out = tmp_path / "s.h5"
-    rc = main(["import", str(src), "-o", str(out), "--role", "wheel=acc_wheel",
-               "--role", "body=acc_body", "--role", "speed=speed_kmh", "--role", "temp=temp",
-               "--time", "time", "--accel-unit", "g", "--speed-unit", "km/h",
-               "--added-mass", "35", "--vehicle", "Camry", "--corner", "rear-left"])
+    rc = main(
+        [
+            "import",
+            str(src),
+            "-o",
+            str(out),
+            "--role",
+            "wheel=acc_wheel",
+            "--role",
+            "body=acc_body",
+            "--role",
+            "speed=speed_kmh",
+            "--role",
+            "temp=temp",
+            "--time",
+            "time",
+            "--accel-unit",
+            "g",
+            "--speed-unit",
+            "km/h",
+            "--added-mass",
+            "35",
+            "--vehicle",
+            "Camry",
+            "--corner",
+            "rear-left",
+        ]
+    )
     assert rc == 0
     with SessionReader(out) as s:
         assert s.metadata.added_mass_kg == 35.0 and s.metadata.corner == "rear-left"
@@ -51,12 +75,31 @@ def test_import_round_trip_with_units(tmp_path, capsys):
 
 
 BAD_CASES = {
-    "missing column": ("time,a,b\n0,1,2\n0.1,1,2\n", ["--role", "wheel=a", "--role", "body=zz"],
-                       "no column 'zz'"),
-    "time backwards": ("time,a,b\n0,1,2\n0.2,1,2\n0.1,1,2\n", None, "row 4, column 'time': time goes backwards"),
-    "duplicate time": ("time,a,b\n0,1,2\n0.1,1,2\n0.1,1,2\n", None, "row 4, column 'time': time repeats"),
-    "nan": ("time,a,b\n0,1,2\n0.1,nan,2\n0.2,1,2\n", None, "row 3, column 'a': 'nan' is not a finite"),
-    "text": ("time,a,b\n0,1,2\n0.1,1,abc\n0.2,1,2\n", None, "row 3, column 'b': 'abc' is not a number"),
+    "missing column": (
+        "time,a,b\n0,1,2\n0.1,1,2\n",
+        ["--role", "wheel=a", "--role", "body=zz"],
+        "no column 'zz'",
+    ),
+    "time backwards": (
+        "time,a,b\n0,1,2\n0.2,1,2\n0.1,1,2\n",
+        None,
+        "row 4, column 'time': time goes backwards",
+    ),
+    "duplicate time": (
+        "time,a,b\n0,1,2\n0.1,1,2\n0.1,1,2\n",
+        None,
+        "row 4, column 'time': time repeats",
+    ),
+    "nan": (
+        "time,a,b\n0,1,2\n0.1,nan,2\n0.2,1,2\n",
+        None,
+        "row 3, column 'a': 'nan' is not a finite",
+    ),
+    "text": (
+        "time,a,b\n0,1,2\n0.1,1,abc\n0.2,1,2\n",
+        None,
+        "row 3, column 'b': 'abc' is not a number",
+    ),
     "empty file": ("", None, "the file is empty"),
     "header only": ("time,a,b\n", None, "0 data rows"),
     "short row": ("time,a,b\n0,1,2\n0.1,1\n", None, "row 3: 2 fields"),
@@ -70,8 +113,21 @@ def test_bad_input_one_clear_line_exit_1_nothing_written(tmp_path, case):
     out = tmp_path / "out.h5"
     roles = roles or ["--role", "wheel=a", "--role", "body=b"]
     proc = subprocess.run(
-        [sys.executable, "-m", "fielddiag.cli", "import", str(src), "-o", str(out), "--time", "time",
-         *roles], capture_output=True, text=True)
+        [
+            sys.executable,
+            "-m",
+            "fielddiag.cli",
+            "import",
+            str(src),
+            "-o",
+            str(out),
+            "--time",
+            "time",
+            *roles,
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert proc.returncode == 1
     assert "Traceback" not in proc.stderr
     lines = proc.stderr.strip().splitlines()
@@ -82,15 +138,28 @@ def test_bad_input_one_clear_line_exit_1_nothing_written(tmp_path, case):
 
 @pytest.mark.parametrize(
     "extra, message",
-    [(["--accel-unit", "furlongs"], "unknown acceleration unit 'furlongs'"),
-     (["--time-unit", "days"], "unknown time unit 'days'"),
-     (["--role", "wheel"], "write it as ROLE=COLUMN")],
+    [
+        (["--accel-unit", "furlongs"], "unknown acceleration unit 'furlongs'"),
+        (["--time-unit", "days"], "unknown time unit 'days'"),
+        (["--role", "wheel"], "write it as ROLE=COLUMN"),
+    ],
 )
 def test_bad_options(tmp_path, capsys, extra, message):
     src = tmp_path / "d.csv"
     _good_csv(src, n=10)
-    rc = main(["import", str(src), "-o", str(tmp_path / "o.h5"), "--time", "time",
-               "--role", "body=acc_body", *extra])
+    rc = main(
+        [
+            "import",
+            str(src),
+            "-o",
+            str(tmp_path / "o.h5"),
+            "--time",
+            "time",
+            "--role",
+            "body=acc_body",
+            *extra,
+        ]
+    )
     assert rc == 1
     assert message in capsys.readouterr().err
     assert not (tmp_path / "o.h5").exists()

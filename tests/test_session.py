@@ -27,10 +27,26 @@ META = SessionMetadata(
     extra={"road": "B-class", "tyre_pressure_bar": 2.3},
 )
 CHANNELS = [
-    ChannelSpec("wheel_z", unit="m/s2", role="wheel", axis="z", sensor="ADXL355 #17",
-                scale=3.9e-6 * 9.80665, offset=0.0, dtype="int32"),
-    ChannelSpec("body_z", unit="m/s2", role="body", axis="z", sensor="ADXL355 #18",
-                scale=3.9e-6 * 9.80665, offset=-0.01, dtype="int32"),
+    ChannelSpec(
+        "wheel_z",
+        unit="m/s2",
+        role="wheel",
+        axis="z",
+        sensor="ADXL355 #17",
+        scale=3.9e-6 * 9.80665,
+        offset=0.0,
+        dtype="int32",
+    ),
+    ChannelSpec(
+        "body_z",
+        unit="m/s2",
+        role="body",
+        axis="z",
+        sensor="ADXL355 #18",
+        scale=3.9e-6 * 9.80665,
+        offset=-0.01,
+        dtype="int32",
+    ),
     ChannelSpec("temp", unit="degC", role="other", axis="", sensor="NTC", dtype="float32"),
 ]
 SIGNALS = [SignalSpec("vehicle_speed", unit="m/s", source="can", message="SPEED", role="speed")]
@@ -39,12 +55,19 @@ SIGNALS = [SignalSpec("vehicle_speed", unit="m/s", source="can", message="SPEED"
 def _record(path: Path, rng: np.random.Generator, n_blocks: int = 37, block: int = 1000):
     raw = []
     times = []
-    with SessionWriter(path, META, CHANNELS, sample_rate_hz=1000.0, signals=SIGNALS,
-                       store_can_frames=True, flush_interval_s=0.05) as w:
+    with SessionWriter(
+        path,
+        META,
+        CHANNELS,
+        sample_rate_hz=1000.0,
+        signals=SIGNALS,
+        store_can_frames=True,
+        flush_interval_s=0.05,
+    ) as w:
         for b in range(n_blocks):
             blk = {
-                "wheel_z": rng.integers(-2**20, 2**20, block, dtype="int32"),
-                "body_z": rng.integers(-2**20, 2**20, block, dtype="int32"),
+                "wheel_z": rng.integers(-(2**20), 2**20, block, dtype="int32"),
+                "body_z": rng.integers(-(2**20), 2**20, block, dtype="int32"),
                 "temp": rng.normal(25, 1, block).astype("float32"),
             }
             t = (b * block + np.arange(block)) / 1000.0 + 1e-7 * b  # device jitter
@@ -71,7 +94,15 @@ def test_round_trip_every_attribute_and_sample(tmp_path, rng):
     raw, times, frames = _record(path, rng)
     with SessionReader(path) as s:
         md = s.metadata
-        for key in ("vehicle", "corner", "operator", "added_mass_kg", "notes", "t0_unix_s", "extra"):
+        for key in (
+            "vehicle",
+            "corner",
+            "operator",
+            "added_mass_kg",
+            "notes",
+            "t0_unix_s",
+            "extra",
+        ):
             assert getattr(md, key) == getattr(META, key)
         assert md.created.endswith("Z") and md.created[:2] == "20"
         assert md.software_version
@@ -124,8 +155,9 @@ def test_slicing_by_time_and_roles(tmp_path, rng):
 
 def test_uniform_time_base(tmp_path):
     data = np.arange(5000, dtype="f8").reshape(-1, 1)
-    write_session(tmp_path / "u.h5", META, [ChannelSpec("x", role="body")], data,
-                  sample_rate_hz=200.0)
+    write_session(
+        tmp_path / "u.h5", META, [ChannelSpec("x", role="body")], data, sample_rate_hz=200.0
+    )
     with SessionReader(tmp_path / "u.h5") as s:
         assert s.time_base == "uniform"
         t, v = s.read_with_time("x", 1.0, 2.0)
@@ -195,8 +227,9 @@ def test_sigkill_loses_at_most_one_second(tmp_path):
     sample the writer had received up to 1 s before the kill, bit for bit."""
     path = tmp_path / "killed.h5"
     child = Path(__file__).with_name("_writer_child.py")
-    proc = subprocess.Popen([sys.executable, str(child), str(path)], stdout=subprocess.PIPE,
-                            text=True)
+    proc = subprocess.Popen(
+        [sys.executable, str(child), str(path)], stdout=subprocess.PIPE, text=True
+    )
     progress: list[tuple[int, float]] = []
     t_start = time.monotonic()
     assert proc.stdout is not None
