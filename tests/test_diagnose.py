@@ -69,6 +69,13 @@ def test_channel_time_offset_is_a_data_warning_not_physics():
     assert out["verdict"] == "adequate" and out["findings"] == []
 
 
+def test_sensor_gain_change_is_a_data_warning_not_physics():
+    out = _diagnose("sensor_gain_changed")
+    warning = next(w for w in out["warnings"] if w["kind"] == "sensor_gain_changed")
+    assert "+7." in warning["message"] or "+8." in warning["message"]  # 8 % injected
+    assert out["verdict"] == "adequate" and out["findings"] == []
+
+
 def test_cli_pair_with_plots(tmp_path, capsys):
     before, after, _ = write_scenario(SCENARIOS["asymmetric_2"], tmp_path)
     out_json = tmp_path / "d.json"

@@ -119,53 +119,105 @@ def _model_ratio(freq_hz, measured, model, coherence, band_hz, min_coherence):
     return f[ok], np.asarray(measured)[ok] / np.asarray(model)[ok]
 
 
+def _t_model(w: np.ndarray, k: float, c: float, k3: float, m: float) -> np.ndarray:
+    """Linear body/wheel transmissibility (K2 + jwC2) / (K2 + K3 - w^2 M + jwC2)."""
+    num = k + 1j * w * c
+    return num / (k + k3 - w * w * m + 1j * w * c)
+
+
+def _weighted_lines(tr: dict, band_hz, min_coherence: float):
+    f = np.asarray(tr["freq_hz"], float)
+    coh = np.asarray(tr["coherence"], float)
+    ok = (f >= band_hz[0]) & (f <= band_hz[1]) & (coh >= min_coherence)
+    t = np.asarray(tr["measured"])[ok]
+    wgt = np.sqrt(np.clip(coh[ok] / np.maximum(1.0 - coh[ok], 1e-3), 0.0, 1e3))
+    return 2 * np.pi * f[ok], t, wgt
+
+
+def _log_residual(model: np.ndarray, meas: np.ndarray, wgt: np.ndarray) -> np.ndarray:
+    d = np.log(meas / model)
+    return np.concatenate([d.real * wgt, d.imag * wgt])
+
+
 def check_gain_change(
     transmissibility: list[dict],
     band_hz: tuple[float, float],
     *,
-    min_coherence: float = 0.9,
+    added_mass_kg: float,
+    start: dict[str, float],
+    min_coherence: float = 0.8,
     min_change: float = 0.03,
 ) -> DataWarning | None:
     """A sensor remounted with another gain between the drives.
 
-    The model fitted to both drives shares one car; a gain change of one channel scales
-    one drive's whole transmissibility by a constant, which shows as the measured/model
-    magnitude ratio sitting flat at a different level in the two drives. Physics does not
-    do that (mass, friction or a progressive spring change the shape, not the level).
-
-    Parameters
-    ----------
-    transmissibility : list of dict
-        Per drive: ``freq_hz``, ``measured`` (complex, e.g. H-v), ``model`` (complex),
-        ``coherence``, ``label``.
+    Three fits of the linear transmissibility to both drives' measured T (log-complex
+    residual, weighted by coherence): (a) one car for both drives, (b) one car plus a gain
+    factor on the second drive, (c) each drive with its own free linear model (the best a
+    linear model can do). A gain change is reported when the gain is significant and
+    larger than ``min_change``, and it removes most of the inconsistency between the
+    drives that (a) leaves and (c) removes: physics that differs between the drives (a
+    progressive spring pushed into its stiff range by the added mass) changes the shape of
+    T, which a flat gain cannot mimic.
     """
-    levels = []
-    for tr in transmissibility:
-        f, ratio = _model_ratio(
-            tr["freq_hz"], tr["measured"], tr["model"], tr["coherence"], band_hz, min_coherence
-        )
-        if f.size < 8:
-            return None
-        lg = np.log(np.abs(ratio))
-        # robust level and its uncertainty (lines are nearly independent in Welch estimates)
-        med = float(np.median(lg))
-        mad = float(np.median(np.abs(lg - med))) * 1.4826
-        levels.append((tr["label"], med, mad / np.sqrt(f.size / 4.0), float(np.std(lg))))
-    if len(levels) != 2:
+    from scipy import optimize
+
+    if len(transmissibility) != 2:
         return None
-    (la, a, sa, spread_a), (lb, b, sb, spread_b) = levels
-    change = float(np.exp(b - a) - 1.0)
-    if abs(change) < min_change or abs(b - a) < 4.0 * np.hypot(sa, sb):
+    lines = [_weighted_lines(tr, band_hz, min_coherence) for tr in transmissibility]
+    if min(w.size for w, _, _ in lines) < 8:
         return None
-    # a flat offset: the ratio's scatter within each drive is small against the jump
-    if abs(b - a) < 1.5 * max(spread_a, spread_b):
+    m0 = float(start.get("sprung_mass_kg", 380.0))
+    x0 = [
+        np.log(m0),
+        np.log(start.get("suspension_stiffness_n_per_m", 2.4e4)),
+        np.log(start.get("suspension_damping_ns_per_m", 1.8e3)),
+        start.get("coupling_stiffness_n_per_m", 0.0)
+        / start.get("suspension_stiffness_n_per_m", 2.4e4),
+    ]
+
+    def joint(x, with_gain: bool):
+        m, k, c = np.exp(x[:3])
+        k3 = x[3] * k
+        g = np.exp(x[4]) if with_gain else 1.0
+        res = []
+        for i, (w, t, wgt) in enumerate(lines):
+            model = _t_model(w, k, c, k3, m + (added_mass_kg if i == 1 else 0.0))
+            res.append(_log_residual(model * (g if i == 1 else 1.0), t, wgt))
+        return np.concatenate(res)
+
+    fit0 = optimize.least_squares(joint, x0, args=(False,), method="lm")
+    fitg = optimize.least_squares(joint, [*fit0.x, 0.0], args=(True,), method="lm")
+    chi0, chig = float(fit0.fun @ fit0.fun), float(fitg.fun @ fitg.fun)
+    chis = 0.0
+    for w, t, wgt in lines:  # each drive alone, per unit mass
+
+        def one(x, w=w, t=t, wgt=wgt):
+            return _log_residual(_t_model(w, np.exp(x[0]), np.exp(x[1]), x[2], 1.0), t, wgt)
+
+        xs = [np.log(np.exp(x0[1]) / m0), np.log(np.exp(x0[2]) / m0), 0.0]
+        sol = optimize.least_squares(one, xs, method="lm")
+        chis += float(sol.fun @ sol.fun)
+    n = fitg.fun.size
+    s2 = chig / max(n - 5, 1)
+    jac = fitg.jac
+    try:
+        cov = np.linalg.inv(jac.T @ jac) * s2
+        sd = float(np.sqrt(cov[4, 4])) * 2.0  # lines of Welch estimates correlate
+    except np.linalg.LinAlgError:
         return None
+    log_g = float(fitg.x[4])
+    change = float(np.exp(log_g) - 1.0)
+    inconsistency = chi0 - chis
+    explained = (chi0 - chig) / inconsistency if inconsistency > 0 else 0.0
+    if abs(change) < min_change or abs(log_g) < 4.0 * sd or explained < 0.7:
+        return None
+    la, lb = transmissibility[0]["label"], transmissibility[1]["label"]
     return DataWarning(
         "sensor_gain_changed",
-        f"the body/wheel transmissibility of the {lb} drive sits {100 * change:+.1f} % off the "
-        f"{la} drive at every frequency, as if a sensor's gain changed between the drives "
+        f"the {lb} drive's body/wheel transmissibility is {100 * change:+.1f} % off the "
+        f"{la} drive's at every frequency, as if a sensor's gain changed between the drives "
         "(remounted, other range, other calibration). Check both sensors' calibration and "
-        "mounting; the mass identification is biased by it",
+        "mounting: the mass identification is biased by it",
         lb,
         "",
         change,

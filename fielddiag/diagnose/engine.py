@@ -597,7 +597,20 @@ def _transmissibility_warnings(drives: Sequence[Drive]) -> list[data_checks.Data
         for tr in ident.transmissibility
     ]
     band = (ident.band_hz.low_hz, ident.band_hz.high_hz)
-    found = [data_checks.check_gain_change(trs, band), data_checks.check_time_offset(trs, band)]
+    start = {
+        k: getattr(ident, k).value
+        for k in (
+            "sprung_mass_kg",
+            "suspension_stiffness_n_per_m",
+            "suspension_damping_ns_per_m",
+            "coupling_stiffness_n_per_m",
+        )
+    }
+    dm = drives[1].added_mass_kg - drives[0].added_mass_kg
+    found = [
+        data_checks.check_gain_change(trs, band, added_mass_kg=dm, start=start),
+        data_checks.check_time_offset(trs, band),
+    ]
     return [w for w in found if w is not None]
 
 
