@@ -141,6 +141,7 @@ class Recorder:
         self.flush_interval_s = float(flush_interval_s)
         self.read_timeout_s = float(read_timeout_s)
         self.block_listeners: list[Callable[[Block], None]] = []
+        self.online: Any = None  # OnlineEstimator, see attach_online_estimator
         self.writer: SessionWriter | None = None
         self.clock: SessionClock | None = None
         self.error: FieldDiagError | None = None
@@ -502,7 +503,27 @@ class Recorder:
             "listener_errors": self.listener_errors,
             "last_error": str(self.error) if self.error else (errors[0] if errors else ""),
             "sources": src_status,
+            **({"online": self.online.status()} if self.online is not None else {}),
         }
+
+    def attach_online_estimator(self, **kw: Any) -> Any:
+        """Estimate suspension parameters on-line from the wheel and body channels.
+
+        Call after :meth:`start`. Returns the :class:`fielddiag.identify.online.OnlineEstimator`
+        (compiled before it is attached, so the source thread never waits for numba), or
+        None when the DAQ has no wheel and body channels. Its status (estimates, information
+        per parameter, advice for the technician) appears under ``"online"`` in
+        :meth:`status`.
+        """
+        from fielddiag.identify.online import OnlineEstimator
+
+        roles = {c.role for c in self.channels}
+        if self.daq is None or not {"wheel", "body"} <= roles:
+            return None
+        est = OnlineEstimator(self.daq.sample_rate_hz, **kw).warm_up()
+        self.block_listeners.append(est.block_listener(self.channels))
+        self.online = est
+        return est
 
 
 def format_status(st: dict[str, Any]) -> str:

@@ -81,6 +81,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--overwrite", action="store_true", help="replace an existing file")
     p.add_argument("--quiet", action="store_true", help="no status line")
     p.add_argument(
+        "--no-online",
+        action="store_true",
+        help="do not estimate stiffness and damping on-line while recording",
+    )
+    p.add_argument(
         "--status-interval",
         type=float,
         default=None,
@@ -135,6 +140,8 @@ def run(args: argparse.Namespace) -> int:
         signal.signal(signal.SIGTERM, _interrupt)
         signal.signal(signal.SIGINT, _interrupt)  # also when started in the background
     rec.start()
+    if not args.no_online:
+        rec.attach_online_estimator()
     tty = sys.stderr.isatty()
     interval = args.status_interval or (0.5 if tty else 5.0)
     chans = ", ".join(f"{c.name} ({c.role})" for c in rec.channels) or "none"
@@ -151,7 +158,10 @@ def run(args: argparse.Namespace) -> int:
                 break
             time.sleep(0.1)
             if not args.quiet and time.monotonic() >= next_status:
-                line = format_status(rec.status())
+                st = rec.status()
+                line = format_status(st)
+                if "online" in st:
+                    line += " | " + st["online"].get("advice", "")
                 if tty:
                     sys.stderr.write("\r" + line[:160].ljust(160))
                 else:
@@ -168,6 +178,10 @@ def run(args: argparse.Namespace) -> int:
             signal.signal(signal.SIGINT, signal.default_int_handler)
             if tty and not args.quiet:
                 sys.stderr.write("\n")
+    if rec.online is not None:
+        from fielddiag.identify.online import format_status as format_online
+
+        print("on-line estimate: " + format_online(rec.online.status()), file=sys.stderr)
     print(
         f"stopped after {final['elapsed_s']:.1f} s: {final['samples']} samples, "
         f"{final['frames_received']} frames, {final['frames_lost']} lost, "
