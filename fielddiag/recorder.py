@@ -142,6 +142,7 @@ class Recorder:
         self.read_timeout_s = float(read_timeout_s)
         self.block_listeners: list[Callable[[Block], None]] = []
         self.online: Any = None  # OnlineEstimator, see attach_online_estimator
+        self.online_error = ""
         self.writer: SessionWriter | None = None
         self.clock: SessionClock | None = None
         self.error: FieldDiagError | None = None
@@ -520,9 +521,22 @@ class Recorder:
         roles = {c.role for c in self.channels}
         if self.daq is None or not {"wheel", "body"} <= roles:
             return None
-        est = OnlineEstimator(self.daq.sample_rate_hz, **kw).warm_up()
-        self.block_listeners.append(est.block_listener(self.channels))
-        self.online = est
+        est = OnlineEstimator(self.daq.sample_rate_hz, **kw)
+        listener = est.block_listener(self.channels)
+
+        def warm_then_attach() -> None:
+            # compiling may take seconds the first time: never in the caller's or the
+            # source's thread; the estimate starts with the blocks after it is ready
+            try:
+                est.warm_up()
+            except Exception as exc:  # an estimator failure must not touch the recording
+                self.listener_errors += 1
+                self.online_error = str(exc)
+                return
+            self.block_listeners.append(listener)
+            self.online = est
+
+        threading.Thread(target=warm_then_attach, name="online-warm-up", daemon=True).start()
         return est
 
 

@@ -110,6 +110,10 @@ def _decode(raw: bytes) -> str:
     return raw.decode("utf-8", errors="replace")
 
 
+class DiskFullError(OSError):
+    """Raised before a write the disk has no room for (nothing was written)."""
+
+
 class SessionWriter:
     """Append blocks of a recording to a new session file, durably.
 
@@ -468,10 +472,15 @@ class SessionWriter:
         """
         st = os.statvfs(self._file_path.parent)
         free = st.f_bavail * st.f_frsize
-        growing = len(self.channels) + 1 + 2 * len(self.signals) + 4
-        need = self._pending_bytes() + growing * _CHUNK_SAMPLES * 8 + (1 << 20)
+        # worst case: every growing dataset allocates one new chunk, plus metadata
+        chunks = sum(_CHUNK_SAMPLES * d.itemsize for d in self._raw_dtypes)
+        chunks += _CHUNK_SAMPLES * 8 if self.time_base == "timestamps" else 0
+        chunks += len(self.signals) * 2 * 4096 * 8
+        if self._pending_frames:
+            chunks += 4096 * CAN_FRAME_DTYPE.itemsize
+        need = self._pending_bytes() + chunks + (256 << 10)
         if free < need:
-            raise OSError(
+            raise DiskFullError(
                 f"disk full: {free / 1e6:.1f} MB free on {self._file_path.parent}, "
                 f"{need / 1e6:.1f} MB needed for the next write"
             )
@@ -511,8 +520,15 @@ class SessionWriter:
                 if failed is None:
                     self._check_space()
                     self._write_pending()
+                if failed is None or isinstance(failed, DiskFullError):
+                    # a refused write left the file consistent: it closes cleanly with
+                    # everything written before (marking it needs no new space)
                     self._file["status"][0] = b"closed"
                     self._file.flush()
+            except DiskFullError as exc:
+                failed = self.error = exc
+                self._file["status"][0] = b"closed"
+                self._file.flush()
             except OSError as exc:
                 failed = self.error = exc
             finally:

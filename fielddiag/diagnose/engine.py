@@ -648,6 +648,23 @@ def _locate(
     return windows[:8], exb, {"freq_hz": f.tolist(), "psd": mean_psd.tolist(), "noise_psd": noise}
 
 
+def _model_static_offset(model: ForceModel, th: np.ndarray, load_n: float) -> float:
+    """Static suspension extension r0 where the model's force carries ``load_n``."""
+    from scipy.optimize import brentq
+
+    if load_n == 0.0:
+        return 0.0
+
+    def net(r: float) -> float:
+        return float(model.force(r, 0.0, r, th)[0][0]) - load_n
+
+    try:
+        return float(brentq(net, -0.5, 0.5, xtol=1e-7))
+    except ValueError:  # no sign change: fall back to the linear estimate
+        k = th[model.index("linear_spring.suspension_stiffness_n_per_m")]
+        return -load_n / k if k > 0 else 0.0
+
+
 def _departure(
     fit: _Fit, prepared: Sequence[_Prepared], coupling: bool
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -660,7 +677,8 @@ def _departure(
     for p in prepared:
         for part, flag in ((p.fit, False), (p.val, True)):
             r, rdot, x2, a2 = _states(part)
-            r = r + _static_offset(vals, part.added_mass_kg)
+            g = GRAVITY if "body_mass_kg" in vals else 0.0
+            r = r + _model_static_offset(model, th, part.added_mass_kg * g)
             f, _, _ = model.force(r, rdot, x2, th)
             rs.append(r)
             vs.append(rdot)
@@ -707,7 +725,7 @@ def diagnose_drives(
     band_hz: tuple[float, float] | None = None,
     holdout_fraction: float = 0.3,
     analysis_rate_hz: float = 125.0,
-    max_full_fits: int = 5,
+    max_full_fits: int = 7,
     progress: Callable[[str], None] | None = None,
 ) -> Diagnosis:
     """Diagnose one drive (per unit mass) or a before/after pair (absolute).
@@ -725,7 +743,7 @@ def diagnose_drives(
     analysis_rate_hz : float
         The integrated signals are resampled to this rate (>= 4x the band's top).
     max_full_fits : int
-        Grey-box fits of candidates after screening (the rest are screened only).
+        Grey-box fits of candidates: every single effect, then pairs of the useful ones.
     progress : callable or None
         Called with a line of text at each step.
     """
@@ -776,25 +794,37 @@ def diagnose_drives(
         gain = 1.0 - float(np.mean(ee.residual_validation**2)) / mse_b
         t = paired_block_t(ee_base.residual_validation, ee.residual_validation)
         screening["+".join(combo)] = {"gain": gain, "t": t}
-    singles = sorted((e for e in effects if e in screening), key=lambda e: -screening[e]["gain"])
-    promising = [e for e in singles if screening[e]["gain"] > 0.0]
-    chosen_combos: list[tuple[str, ...]] = [(e,) for e in promising[:2]]
-    pairs = [
-        c
-        for c in itertools.combinations(effects, 2)
-        if "+".join(c) in screening and set(c) <= set(promising[:3])
-    ]
-    pairs.sort(key=lambda c: -screening["+".join(c)]["gain"])
-    chosen_combos += pairs
-    chosen_combos = chosen_combos[:max_full_fits]
-
     fits = [base]
-    for combo in chosen_combos:
+
+    def grey(combo: tuple[str, ...]) -> _Fit | None:
         say(f"fitting the model with {' + '.join(combo)}")
+        start = ee_fits[combo].values if combo in ee_fits else _initial_from(base)
         try:
-            fits.append(_grey_fit(combo, prepared, coupling, ee_fits[combo].values, substeps=2))
+            return _grey_fit(combo, prepared, coupling, start, substeps=2)
         except (FieldDiagError, np.linalg.LinAlgError, FloatingPointError) as exc:
             say(f"  {' + '.join(combo)} could not be fitted: {exc}")
+            return None
+
+    # every single effect gets the full fit (started from its signature fit); pairs only
+    # of the single effects that predict held-out data better than the linear model
+    singles = [f for f in (grey((e,)) for e in effects) if f is not None]
+    fits += singles
+    useful = sorted(
+        (
+            f
+            for f in singles
+            if f.candidate.physical and compare(base.candidate, f.candidate).t > 0.0
+        ),
+        key=lambda f: f.candidate.mse_validation,
+    )[:3]
+    pairs = [
+        tuple(sorted(a.effects + b.effects, key=list(effects).index))
+        for a, b in itertools.combinations(useful, 2)
+    ]
+    for combo in pairs[: max(0, max_full_fits - len(singles))]:
+        f = grey(combo)
+        if f is not None:
+            fits.append(f)
     sel = select_model(base.candidate, [f.candidate for f in fits[1:]])
     chosen = next(f for f in fits if f.candidate is sel.chosen)
     say("looking for structure no effect explains")

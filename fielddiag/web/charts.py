@@ -1,0 +1,423 @@
+"""ECharts option dictionaries for the dashboard's plots (layout only, no numerics).
+
+Every builder takes arrays that are already small (downsampled by
+:mod:`fielddiag.downsample` or produced by the pipeline) and returns an options dict for
+``ui.echart``. Numbers are rounded to what a screen can show (about 6 significant
+digits) so the JSON sent to the browser stays small.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from fielddiag.channels import Event, Gap
+from fielddiag.downsample import Trace
+
+PALETTE = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#17becf", "#8c564b",
+           "#e377c2", "#7f7f7f", "#bcbd22"]
+GRID_HEIGHT_PX = 96
+GRID_GAP_PX = 34
+TOP_PX = 44
+BOTTOM_PX = 70
+
+__all__ = [
+    "heatmap_options",
+    "pairs",
+    "spectrum_options",
+    "surface_options",
+    "timeseries_height_px",
+    "timeseries_options",
+    "xy_options",
+    "zoom_window",
+]
+
+
+def _decimals(values: np.ndarray, digits: int = 6) -> int:
+    finite = values[np.isfinite(values)]
+    if finite.size == 0:
+        return 3
+    big = float(np.max(np.abs(finite)))
+    if big == 0.0:
+        return 3
+    return int(min(12, max(0, digits - 1 - math.floor(math.log10(big)))))
+
+
+def pairs(x: np.ndarray, y: np.ndarray, x_decimals: int | None = None) -> list[list[Any]]:
+    """``[[x, y], ...]`` rounded for display; NaN becomes None (a break in the line)."""
+    x = np.asarray(x, dtype="f8")
+    y = np.asarray(y, dtype="f8")
+    xd = _decimals(x, 9) if x_decimals is None else x_decimals
+    xr = np.round(x, xd).tolist()
+    yr = np.round(y, _decimals(y)).tolist()
+    return [[a, (None if b != b else b)] for a, b in zip(xr, yr, strict=True)]
+
+
+def zoom_window(
+    args: dict[str, Any], t_start_s: float, t_end_s: float
+) -> tuple[float, float] | None:
+    """The time window an ECharts ``datazoom`` event asks for, or None if it says nothing.
+
+    The event carries either percentages of the full axis (``start``/``end``) or axis
+    values (``startValue``/``endValue``), at top level or in ``batch[0]``.
+    """
+    ev = args
+    if isinstance(args.get("batch"), list) and args["batch"]:
+        ev = args["batch"][0]
+    span = t_end_s - t_start_s
+    if ev.get("startValue") is not None and ev.get("endValue") is not None:
+        lo, hi = float(ev["startValue"]), float(ev["endValue"])
+    elif ev.get("start") is not None and ev.get("end") is not None:
+        lo = t_start_s + span * float(ev["start"]) / 100.0
+        hi = t_start_s + span * float(ev["end"]) / 100.0
+    else:
+        return None
+    lo, hi = max(t_start_s, min(lo, hi)), min(t_end_s, max(lo, hi))
+    return (lo, hi) if hi > lo else None
+
+
+def timeseries_options(
+    traces: Sequence[Trace],
+    t_start_s: float,
+    t_end_s: float,
+    *,
+    window: tuple[float, float] | None = None,
+    events: Sequence[Event] = (),
+    gaps: Sequence[Gap] = (),
+) -> dict[str, Any]:
+    """Stacked plots, one per trace, sharing one zoomable time axis.
+
+    Parameters
+    ----------
+    traces : sequence of Trace
+        What to draw (already downsampled).
+    t_start_s, t_end_s : float
+        The full time axis (the zoom slider spans it).
+    window : (lo, hi) or None
+        The visible window; None shows everything.
+    events, gaps : sequences
+        Drawn as labelled vertical lines and shaded spans on every plot.
+    """
+    span = max(t_end_s - t_start_s, 1e-9)
+    lo, hi = window if window else (t_start_s, t_end_s)
+    start_pct = 100.0 * (lo - t_start_s) / span
+    end_pct = 100.0 * (hi - t_start_s) / span
+    n = max(1, len(traces))
+    grids, xaxes, yaxes, series, titles = [], [], [], [], []
+    for i, tr in enumerate(traces):
+        top = TOP_PX + i * (GRID_HEIGHT_PX + GRID_GAP_PX)
+        grids.append({"left": 70, "right": 24, "top": top, "height": GRID_HEIGHT_PX})
+        titles.append(
+            {
+                "text": f"{tr.name} [{tr.unit}]" if tr.unit else tr.name,
+                "top": top - 22,
+                "left": 70,
+                "textStyle": {"fontSize": 12, "fontWeight": "normal"},
+            }
+        )
+        xaxes.append(
+            {
+                "type": "value",
+                "gridIndex": i,
+                "min": t_start_s,
+                "max": t_end_s,
+                "axisLabel": {"show": i == n - 1},
+                "name": "time [s]" if i == n - 1 else "",
+                "nameLocation": "middle",
+                "nameGap": 24,
+            }
+        )
+        yaxes.append({"type": "value", "gridIndex": i, "scale": True, "splitNumber": 3})
+        s: dict[str, Any] = {
+            "name": tr.name,
+            "type": "line",
+            "xAxisIndex": i,
+            "yAxisIndex": i,
+            "showSymbol": False,
+            "animation": False,
+            "lineStyle": {"width": 1},
+            "color": PALETTE[i % len(PALETTE)],
+            "step": "end" if tr.kind == "signal" else False,
+            "data": pairs(tr.time_s, tr.values),
+        }
+        mark_lines = [
+            {"xAxis": round(e.time_s, 6), "label": {"show": i == 0, "formatter": e.label[:24]}}
+            for e in events
+        ]
+        if mark_lines:
+            s["markLine"] = {
+                "symbol": "none",
+                "silent": True,
+                "animation": False,
+                "lineStyle": {"type": "dashed", "color": "#555", "width": 1},
+                "label": {"position": "end", "fontSize": 10},
+                "data": mark_lines,
+            }
+        if gaps:
+            s["markArea"] = {
+                "silent": True,
+                "itemStyle": {"color": "rgba(214, 39, 40, 0.18)"},
+                "data": [[{"xAxis": g.start_s, "name": "gap" if i == 0 else ""},
+                          {"xAxis": g.end_s}] for g in gaps],
+            }
+        series.append(s)
+    all_x = list(range(len(traces)))
+    return {
+        "animation": False,
+        "title": titles,
+        "grid": grids,
+        "xAxis": xaxes,
+        "yAxis": yaxes,
+        "series": series,
+        "tooltip": {"trigger": "axis", "axisPointer": {"type": "line"}},
+        "axisPointer": {"link": [{"xAxisIndex": "all"}]},
+        "toolbox": {
+            "right": 20,
+            "feature": {"dataZoom": {"yAxisIndex": "none"}, "restore": {}},
+        },
+        "dataZoom": [
+            {"type": "inside", "xAxisIndex": all_x, "filterMode": "none",
+             "start": start_pct, "end": end_pct, "throttle": 120},
+            {"type": "slider", "xAxisIndex": all_x, "filterMode": "none",
+             "start": start_pct, "end": end_pct, "bottom": 8, "height": 22, "throttle": 120},
+        ],
+    }
+
+
+def timeseries_height_px(n_traces: int) -> int:
+    """Height of the chart :func:`timeseries_options` lays out for ``n_traces`` plots."""
+    return TOP_PX + max(1, n_traces) * (GRID_HEIGHT_PX + GRID_GAP_PX) + BOTTOM_PX
+
+
+def xy_options(
+    series: Sequence[dict[str, Any]],
+    *,
+    x_name: str,
+    y_name: str,
+    x_log: bool = False,
+    y_log: bool = False,
+    title: str = "",
+    mark_x_band: tuple[float, float] | None = None,
+    mark_x_windows: Sequence[tuple[float, float]] = (),
+    y_min: float | None = None,
+    y_max: float | None = None,
+) -> dict[str, Any]:
+    """One x/y plot of several named line series.
+
+    Parameters
+    ----------
+    series : sequence of dict
+        Each ``{"name", "x", "y"}`` with arrays, optional ``"dashed": True``, ``"color"``.
+    mark_x_band : (lo, hi) or None
+        A shaded band on the x axis (the frequency band where a mismatch lives).
+    mark_x_windows : sequence of (lo, hi)
+        Shaded windows on the x axis (time windows where a mismatch lives).
+    """
+    out_series = []
+    for i, s in enumerate(series):
+        d: dict[str, Any] = {
+            "name": s["name"],
+            "type": "line",
+            "showSymbol": False,
+            "animation": False,
+            "color": s.get("color", PALETTE[i % len(PALETTE)]),
+            "lineStyle": {"width": 1.5, "type": "dashed" if s.get("dashed") else "solid"},
+            "data": pairs(s["x"], s["y"]),
+        }
+        out_series.append(d)
+    areas = []
+    if mark_x_band is not None:
+        areas.append([{"xAxis": mark_x_band[0], "name": "mismatch"}, {"xAxis": mark_x_band[1]}])
+    areas += [[{"xAxis": a}, {"xAxis": b}] for a, b in mark_x_windows]
+    if areas and out_series:
+        out_series[0]["markArea"] = {
+            "silent": True,
+            "itemStyle": {"color": "rgba(255, 165, 0, 0.22)"},
+            "data": areas,
+        }
+    y_axis: dict[str, Any] = {"type": "log" if y_log else "value", "name": y_name,
+                              "nameLocation": "middle", "nameGap": 50, "scale": not y_log}
+    if y_min is not None:
+        y_axis["min"] = y_min
+    if y_max is not None:
+        y_axis["max"] = y_max
+    return {
+        "animation": False,
+        "title": {"text": title, "left": "center", "textStyle": {"fontSize": 13}},
+        "legend": {"top": 24},
+        "grid": {"left": 70, "right": 24, "top": 60, "bottom": 50},
+        "tooltip": {"trigger": "axis"},
+        "xAxis": {"type": "log" if x_log else "value", "name": x_name,
+                  "nameLocation": "middle", "nameGap": 28, "scale": not x_log},
+        "yAxis": y_axis,
+        "series": out_series,
+    }
+
+
+def spectrum_options(
+    freq_hz: np.ndarray,
+    curves: dict[str, np.ndarray],
+    *,
+    coherence: dict[str, np.ndarray] | None = None,
+    title: str = "Transmissibility |X2/X1|",
+    band_hz: tuple[float, float] | None = None,
+    band_label: str = "mismatch",
+) -> dict[str, Any]:
+    """Transmissibility magnitudes (log-log) above their coherences (linear, 0..1)."""
+    freq_hz = np.asarray(freq_hz, dtype="f8")
+    pos = freq_hz > 0
+    series: list[dict[str, Any]] = []
+    bases: list[str] = []  # "before" and "before model" share a colour
+
+    def colour(name: str) -> str:
+        base = name.removesuffix(" model")
+        if base not in bases:
+            bases.append(base)
+        return PALETTE[bases.index(base) % len(PALETTE)]
+
+    for name, mag in curves.items():
+        series.append({
+            "name": name, "type": "line", "showSymbol": False, "animation": False,
+            "xAxisIndex": 0, "yAxisIndex": 0, "color": colour(name),
+            "lineStyle": {"width": 1.5, "type": "dashed" if name.endswith("model") else "solid"},
+            "data": pairs(freq_hz[pos], np.abs(np.asarray(mag))[pos]),
+        })
+    for name, coh in (coherence or {}).items():
+        series.append({
+            "name": f"coherence {name}", "type": "line", "showSymbol": False,
+            "animation": False, "xAxisIndex": 1, "yAxisIndex": 1,
+            "color": colour(name), "lineStyle": {"width": 1},
+            "data": pairs(freq_hz[pos], np.asarray(coh)[pos]),
+        })
+    if band_hz is not None and series:
+        series[0]["markArea"] = {
+            "silent": True, "itemStyle": {"color": "rgba(255, 165, 0, 0.22)"},
+            "data": [[{"xAxis": band_hz[0], "name": band_label}, {"xAxis": band_hz[1]}]],
+        }
+    has_coh = bool(coherence)
+    grids = [{"left": 70, "right": 24, "top": 70, "height": 270 if has_coh else 360}]
+    x_axes: list[dict[str, Any]] = [{"type": "log", "gridIndex": 0, "name": "" if has_coh
+                                     else "frequency [Hz]", "nameLocation": "middle",
+                                     "nameGap": 28}]
+    y_axes: list[dict[str, Any]] = [{"type": "log", "gridIndex": 0, "name": "|T|",
+                                     "nameLocation": "middle", "nameGap": 50}]
+    if has_coh:
+        grids.append({"left": 70, "right": 24, "top": 370, "height": 90})
+        x_axes.append({"type": "log", "gridIndex": 1, "name": "frequency [Hz]",
+                       "nameLocation": "middle", "nameGap": 28})
+        y_axes.append({"type": "value", "gridIndex": 1, "min": 0, "max": 1,
+                       "name": "coherence", "nameLocation": "middle", "nameGap": 50})
+    return {
+        "animation": False,
+        "title": {"text": title, "left": "center", "textStyle": {"fontSize": 13}},
+        "legend": {"top": 26, "type": "scroll"},
+        "tooltip": {"trigger": "axis"},
+        "axisPointer": {"link": [{"xAxisIndex": "all"}]},
+        "grid": grids,
+        "xAxis": x_axes,
+        "yAxis": y_axes,
+        "series": series,
+    }
+
+
+def surface_options(
+    r_m: np.ndarray,
+    rdot_mps: np.ndarray,
+    force: np.ndarray,
+    *,
+    force_name: str = "restoring force per unit mass [N/kg]",
+    title: str = "Restoring-force surface",
+    regions: Sequence[dict[str, float]] = (),
+    max_points: int = 4000,
+) -> dict[str, Any]:
+    """Restoring force over (r, rdot) as a scatter coloured by force.
+
+    ``regions`` are rectangles ``{"r_min", "r_max", "rdot_min", "rdot_max"}`` drawn as
+    shaded areas (where a mismatch lives on the map).
+    """
+    r = np.asarray(r_m, dtype="f8")
+    v = np.asarray(rdot_mps, dtype="f8")
+    f = np.asarray(force, dtype="f8")
+    if r.size > max_points:  # an even spread of points is enough for a colour map
+        keep = np.linspace(0, r.size - 1, max_points).astype(int)
+        r, v, f = r[keep], v[keep], f[keep]
+    fr = np.round(f, _decimals(f)).tolist()
+    data = [[a, b, c] for a, b, c in zip(np.round(r, _decimals(r)).tolist(),
+                                         np.round(v, _decimals(v)).tolist(), fr, strict=True)]
+    finite = f[np.isfinite(f)]
+    lo = float(np.min(finite)) if finite.size else 0.0
+    hi = float(np.max(finite)) if finite.size else 1.0
+    series: dict[str, Any] = {
+        "type": "scatter", "symbolSize": 4, "animation": False, "data": data,
+        "name": force_name,
+    }
+    if regions:
+        series["markArea"] = {
+            "silent": True,
+            "itemStyle": {"color": "rgba(0, 0, 0, 0)", "borderColor": "#ff7f0e",
+                          "borderWidth": 2},
+            "data": [[{"coord": [g["r_min"], g["rdot_min"]], "name": g.get("name", "")},
+                      {"coord": [g["r_max"], g["rdot_max"]]}] for g in regions],
+        }
+    return {
+        "animation": False,
+        "title": {"text": title, "left": "center", "textStyle": {"fontSize": 13}},
+        "grid": {"left": 80, "right": 110, "top": 50, "bottom": 50},
+        "tooltip": {"trigger": "item"},
+        "xAxis": {"type": "value", "name": "suspension extension r [m]", "scale": True,
+                  "nameLocation": "middle", "nameGap": 28},
+        "yAxis": {"type": "value", "name": "rate dr/dt [m/s]", "scale": True,
+                  "nameLocation": "middle", "nameGap": 55},
+        "visualMap": {"min": lo, "max": hi, "dimension": 2, "orient": "vertical",
+                      "right": 10, "top": "middle", "calculable": True, "text": ["F", ""],
+                      "inRange": {"color": ["#313695", "#74add1", "#ffffbf", "#f46d43",
+                                            "#a50026"]}},
+        "series": [series],
+    }
+
+
+def heatmap_options(
+    x_centers: np.ndarray,
+    y_centers: np.ndarray,
+    grid: Sequence[Sequence[float | None]],
+    *,
+    title: str,
+    x_name: str = "extension r [mm]",
+    y_name: str = "rate dr/dt [mm/s]",
+    value_name: str = "force per unit mass [m/s²]",
+    x_scale: float = 1e3,
+    y_scale: float = 1e3,
+) -> dict[str, Any]:
+    """A binned surface ``grid[i][j]`` over (x_centers[i], y_centers[j]) as a heatmap.
+
+    Empty bins (None) stay blank. Axis labels are the bin centres times the scales (mm).
+    """
+    xs = [f"{v * x_scale:.3g}" for v in np.asarray(x_centers, dtype="f8")]
+    ys = [f"{v * y_scale:.3g}" for v in np.asarray(y_centers, dtype="f8")]
+    data, vals = [], []
+    for i, row in enumerate(grid):
+        for j, v in enumerate(row):
+            if v is None or (isinstance(v, float) and not math.isfinite(v)):
+                continue
+            data.append([i, j, round(float(v), 6)])
+            vals.append(float(v))
+    lo, hi = (min(vals), max(vals)) if vals else (0.0, 1.0)
+    return {
+        "animation": False,
+        "title": {"text": title, "left": "center", "textStyle": {"fontSize": 13}},
+        "grid": {"left": 80, "right": 100, "top": 40 if title else 16, "bottom": 60},
+        "tooltip": {"position": "top"},
+        "xAxis": {"type": "category", "data": xs, "name": x_name, "nameLocation": "middle",
+                  "nameGap": 32, "splitArea": {"show": False}},
+        "yAxis": {"type": "category", "data": ys, "name": y_name, "nameLocation": "middle",
+                  "nameGap": 55, "splitArea": {"show": False}},
+        "visualMap": {"min": lo, "max": hi, "calculable": True, "orient": "vertical",
+                      "right": 5, "top": "middle", "text": ["m/s²", ""],
+                      "inRange": {"color": ["#313695", "#74add1", "#ffffbf", "#f46d43",
+                                            "#a50026"]}},
+        "series": [{"type": "heatmap", "data": data, "name": value_name,
+                    "progressive": 0, "animation": False}],
+    }

@@ -1,0 +1,96 @@
+"""The frame around every page (header, navigation) and small shared widgets."""
+
+from __future__ import annotations
+
+from urllib.parse import quote
+
+from nicegui import ui
+
+from fielddiag import __version__
+
+NAV = (
+    ("/", "Sessions", "folder_open"),
+    ("/identify", "Identification", "tune"),
+    ("/diagnose", "Diagnosis", "troubleshoot"),
+    ("/live", "Live recording", "sensors"),
+)
+
+
+def header(root_label: str) -> None:
+    """Top bar: product name, the sessions folder, and the pages."""
+    with ui.header(elevated=True).classes("items-center gap-4 px-4 py-2 bg-slate-800"):
+        ui.label("fielddiag").classes("text-lg font-bold tracking-wide")
+        ui.label(root_label).classes("text-xs text-slate-300").mark("root-label")
+        ui.space()
+        for path, label, icon in NAV:
+            with ui.link(target=path).classes("text-white no-underline").mark(f"nav-{label}"):
+                with ui.row().classes("items-center gap-1"):
+                    ui.icon(icon).classes("text-base")
+                    ui.label(label).classes("text-sm")
+        ui.label(f"v{__version__}").classes("text-xs text-slate-400")
+
+
+def page_title(text: str, subtitle: str = "") -> None:
+    ui.label(text).classes("text-xl font-semibold mt-2")
+    if subtitle:
+        ui.label(subtitle).classes("text-sm text-gray-600 -mt-1")
+
+
+def not_available(title: str, reason: str, hint: str = "") -> ui.card:
+    """A clear panel saying a part of the pipeline is not there yet (instead of failing)."""
+    with ui.card().classes("w-full bg-amber-50 border border-amber-300").mark(
+        "not-available"
+    ) as card:
+        with ui.row().classes("items-center gap-2"):
+            ui.icon("hourglass_empty").classes("text-amber-700 text-2xl")
+            ui.label(f"{title}: not available yet").classes("text-base font-semibold")
+        ui.label(reason).classes("text-sm text-gray-700")
+        if hint:
+            ui.label(hint).classes("text-sm text-gray-600")
+    return card
+
+
+def session_link(path: str) -> str:
+    """URL of the session page for a session path relative to the root."""
+    return f"/session?path={quote(path, safe='')}"
+
+
+def file_link(path: str) -> str:
+    """URL that downloads a file given relative to the root."""
+    return f"/files/{quote(path)}"
+
+
+def notify_error(message: str) -> None:
+    """A readable error notification that stays until dismissed."""
+    ui.notify(message, type="negative", close_button="OK", timeout=0, multi_line=True)
+
+
+def fmt_duration(seconds: float) -> str:
+    s = float(seconds)
+    if s < 120:
+        return f"{s:.1f} s"
+    m, s = divmod(int(round(s)), 60)
+    h, m = divmod(m, 60)
+    return f"{h} h {m:02d} min" if h else f"{m} min {s:02d} s"
+
+
+def push_chart_update(chart, partial: dict, n_series: int) -> None:
+    """Apply ``partial`` (a partial ECharts option, e.g. new series data) to ``chart``.
+
+    Sent as a plain ``setOption`` call once the chart in the browser exists and shows
+    ``n_series`` series, bypassing the element's reactive ``options`` prop: pushing a few
+    hundred kB of points through Vue's deep reactivity costs the browser far more than
+    the drawing itself. The caller keeps ``chart.options`` current on the server.
+    """
+    import orjson
+
+    payload = orjson.dumps(partial, option=orjson.OPT_SERIALIZE_NUMPY).decode()
+    ui.run_javascript(
+        f"""(function push(n) {{
+            const c = getElement({chart.id});
+            const ready = c && c.chart && (c.chart.getOption()?.series?.length ?? -1)
+                          === {int(n_series)};
+            if (!ready) {{ if (n < 1000) setTimeout(() => push(n + 1), 10); return; }}
+            c.chart.setOption({payload});
+        }})(0);"""
+    )

@@ -1,0 +1,524 @@
+"""Draw identification and diagnosis results (their ``to_dict()`` JSON) on a page.
+
+The result objects belong to the pipeline; this module only looks up the arrays and
+numbers a page shows, accepting the few spellings a result may use for them (so a page
+keeps working while the result classes evolve), and says plainly what a result lacks.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping
+from typing import Any
+
+import numpy as np
+from nicegui import ui
+
+from fielddiag.web.charts import heatmap_options, spectrum_options, surface_options, xy_options
+
+__all__ = ["find", "parameter_rows", "render_diagnosis", "render_identification"]
+
+#: Headline estimates of an identification result (``{"value", "std"}`` at top level).
+KNOWN_ESTIMATES = {
+    "sprung_mass_kg": ("sprung mass M2", "kg"),
+    "suspension_stiffness_n_per_m": ("suspension stiffness K2", "N/m"),
+    "suspension_damping_ns_per_m": ("suspension damping C2", "N s/m"),
+    "coupling_stiffness_n_per_m": ("coupling stiffness K3", "N/m"),
+    "body_natural_frequency_hz": ("body natural frequency", "Hz"),
+    "damping_ratio": ("damping ratio", ""),
+}
+
+
+def find(d: Any, *paths: str) -> Any:
+    """The first value found at one of the dotted ``paths`` in nested dicts, else None."""
+    for path in paths:
+        cur = d
+        for part in path.split("."):
+            if isinstance(cur, Mapping) and part in cur:
+                cur = cur[part]
+            else:
+                cur = None
+                break
+        if cur is not None:
+            return cur
+    return None
+
+
+def _arr(x: Any) -> np.ndarray | None:
+    if x is None:
+        return None
+    try:
+        a = np.asarray(x, dtype="f8")
+    except (TypeError, ValueError):
+        return None
+    return a if a.ndim == 1 and a.size else None
+
+
+def _fmt(v: Any, digits: int = 4) -> str:
+    if v is None:
+        return "-"
+    try:
+        f = float(v)
+    except (TypeError, ValueError):
+        return str(v)
+    if not math.isfinite(f):
+        return "-"
+    if f == 0.0:
+        return "0"
+    text = f"{f:.{digits}g}"
+    mag = math.floor(math.log10(abs(f)))
+    if "e" in text and digits <= mag < 6:  # 2.401e+04 -> 24010: no exponent below 1e6
+        text = f"{round(f, digits - 1 - mag):.0f}"
+    return text
+
+
+def parameter_rows(result: Mapping[str, Any]) -> list[dict[str, str]]:
+    """Table rows (name, value, std, relative std, unit) of a result's parameters.
+
+    Accepts ``parameters`` as a list of dicts (``name``/``label``, ``value``, ``std``,
+    ``unit``, ``rel_std_pct``) or as a mapping name -> dict or name -> value.
+    """
+    rows: list[dict[str, str]] = []
+    for key, (label, unit) in KNOWN_ESTIMATES.items():
+        e = result.get(key) if isinstance(result, Mapping) else None
+        if isinstance(e, Mapping) and "value" in e:
+            value, std = e.get("value"), e.get("std")
+            rel = None
+            try:
+                rel = 100.0 * float(std) / abs(float(value))
+            except (TypeError, ValueError, ZeroDivisionError):
+                rel = None
+            note = ""
+            if key == "coupling_stiffness_n_per_m" and result.get("k3_included") is False:
+                note = "not significant: held at 0"
+            rows.append({"name": label, "key": key, "value": _fmt(value), "std": _fmt(std, 2),
+                         "rel_std_pct": _fmt(rel, 2), "unit": unit, "note": note})
+    if rows:
+        return rows
+    params = find(result, "parameters", "params", "estimates", "fit.parameters")
+    items: Iterable[tuple[str, Any]]
+    if isinstance(params, Mapping):
+        items = params.items()
+    elif isinstance(params, list):
+        items = [(str(p.get("name", p.get("key", i))), p) for i, p in enumerate(params)
+                 if isinstance(p, Mapping)]
+    else:
+        return rows
+    for name, p in items:
+        if isinstance(p, Mapping):
+            value, std = p.get("value"), p.get("std", p.get("std_dev", p.get("sigma")))
+            rel = p.get("rel_std_pct")
+            if rel is None and value not in (None, 0) and std is not None:
+                try:
+                    rel = 100.0 * float(std) / abs(float(value))
+                except (TypeError, ValueError, ZeroDivisionError):
+                    rel = None
+            label = p.get("label") or name
+            unit = p.get("unit", "")
+            flags = [f for f, on in (("fixed", p.get("fixed")), ("at bound", p.get("at_bound")))
+                     if on]
+        else:
+            value, std, rel, label, unit, flags = p, None, None, name, "", []
+        rows.append({
+            "name": str(label),
+            "key": str(name),
+            "value": _fmt(value),
+            "std": _fmt(std, 2),
+            "rel_std_pct": _fmt(rel, 2),
+            "unit": str(unit),
+            "note": ", ".join(flags),
+        })
+    return rows
+
+
+def _parameter_table(result: Mapping[str, Any]) -> None:
+    rows = parameter_rows(result)
+    if not rows:
+        ui.label("This result holds no parameter table.").classes("text-gray-600")
+        return
+    cols = [
+        {"name": "name", "label": "parameter", "field": "name", "align": "left"},
+        {"name": "value", "label": "value", "field": "value"},
+        {"name": "std", "label": "std dev", "field": "std"},
+        {"name": "rel_std_pct", "label": "± %", "field": "rel_std_pct"},
+        {"name": "unit", "label": "unit", "field": "unit", "align": "left"},
+        {"name": "note", "label": "", "field": "note", "align": "left"},
+    ]
+    ui.table(columns=cols, rows=rows, row_key="key").props("dense flat bordered").classes(
+        "w-full max-w-3xl"
+    ).mark("parameter-table")
+
+
+def _magnitude(x: Any) -> np.ndarray | None:
+    """|z| of a complex series ``{"re": [...], "im": [...]}`` or a plain magnitude list."""
+    if isinstance(x, Mapping) and "re" in x and "im" in x:
+        re, im = _arr(x["re"]), _arr(x["im"])
+        if re is None or im is None or re.size != im.size:
+            return None
+        return np.hypot(re, im)
+    return _arr(x)
+
+
+def _transmissibility(result: Mapping[str, Any]) -> dict[str, Any] | None:
+    """Frequency lines, |T| per session (estimate and model) and coherences."""
+    tr = find(result, "transmissibility", "transfer", "spectra")
+    curves: dict[str, np.ndarray] = {}
+    coh: dict[str, np.ndarray] = {}
+    freq = None
+    if isinstance(tr, list):  # one entry per session (IdentificationResult)
+        for item in tr:
+            if not isinstance(item, Mapping):
+                continue
+            f = _arr(item.get("freq_hz"))
+            if f is None:
+                continue
+            if freq is None:
+                freq = f
+            if f.size != freq.size or not np.allclose(f, freq):
+                continue
+            label = str(item.get("label", f"session {len(coh) + 1}"))
+            mag = _magnitude(find(item, "hv", "h1", "magnitude"))
+            if mag is not None and mag.size == f.size:
+                curves[label] = mag
+            model = _magnitude(item.get("model"))
+            if model is not None and model.size == f.size:
+                curves[f"{label} model"] = model
+            c = _arr(item.get("coherence"))
+            if c is not None and c.size == f.size:
+                coh[label] = c
+    elif isinstance(tr, Mapping):
+        freq = _arr(find(tr, "freq_hz", "frequency_hz", "f_hz"))
+        if freq is None:
+            return None
+        for label in ("before", "after"):
+            part = tr.get(label)
+            if isinstance(part, Mapping):
+                mag = _magnitude(find(part, "hv", "magnitude", "abs", "h1"))
+                c = _arr(part.get("coherence"))
+                model = _magnitude(part.get("model"))
+            else:
+                mag = _arr(find(tr, f"{label}_magnitude", f"{label}_abs"))
+                c = _arr(find(tr, f"{label}_coherence"))
+                model = _arr(find(tr, f"{label}_model_magnitude"))
+            if mag is not None and mag.size == freq.size:
+                curves[label] = mag
+            if model is not None and model.size == freq.size:
+                curves[f"{label} model"] = model
+            if c is not None and c.size == freq.size:
+                coh[label] = c
+    if freq is None or not curves:
+        return None
+    band = result.get("band_hz") if isinstance(result, Mapping) else None
+    band_hz = None
+    if isinstance(band, Mapping) and band.get("low_hz") is not None:
+        band_hz = (float(band["low_hz"]), float(band["high_hz"]))
+    elif isinstance(band, list | tuple) and len(band) == 2:
+        band_hz = (float(band[0]), float(band[1]))
+    return {"freq_hz": freq, "curves": curves, "coherence": coh, "band_hz": band_hz}
+
+
+def _grid_surfaces(result: Mapping[str, Any]) -> list[dict[str, Any]]:
+    """Binned restoring-force surfaces (one per session) of an IdentificationResult."""
+    out = []
+    rf = result.get("restoring_force") if isinstance(result, Mapping) else None
+    for item in rf if isinstance(rf, list) else []:
+        if not isinstance(item, Mapping):
+            continue
+        r = _arr(item.get("r_centers_m"))
+        v = _arr(item.get("rdot_centers_mps"))
+        grid = item.get("force_per_mass_mps2")
+        if r is None or v is None or not isinstance(grid, list) or len(grid) != r.size:
+            continue
+        out.append({"label": str(item.get("label", "")), "r": r, "rdot": v, "grid": grid,
+                    "k": find(item, "stiffness_per_mass.value"),
+                    "c": find(item, "damping_per_mass.value")})
+    return out
+
+
+def _surface(result: Mapping[str, Any]) -> dict[str, np.ndarray] | None:
+    s = find(result, "restoring_force", "restoring_force_surface", "surface")
+    if not isinstance(s, Mapping):
+        return None
+    r = _arr(find(s, "r_m", "extension_m", "r"))
+    v = _arr(find(s, "rdot_mps", "rate_mps", "rdot"))
+    f = _arr(find(s, "force_n_per_kg", "force_per_kg", "force_n", "force", "f"))
+    if r is None or v is None or f is None or not (r.size == v.size == f.size):
+        return None
+    return {"r": r, "rdot": v, "force": f}
+
+
+def _summary_text(result: Mapping[str, Any]) -> str:
+    """The pipeline's own readable summary of an identification result, if it can make one."""
+    text = find(result, "summary", "message")
+    if isinstance(text, str):
+        return text
+    try:
+        from fielddiag.identify.results import IdentificationResult
+
+        return IdentificationResult.from_dict(dict(result)).summary()
+    except Exception:  # an older/newer result layout: the tables below still show it
+        return ""
+
+
+def render_identification(result: Mapping[str, Any]) -> None:
+    """Transmissibility before/after with coherence, restoring-force surface, parameters."""
+    ui.label("Parameters").classes("text-base font-semibold mt-2")
+    _parameter_table(result)
+    warnings = result.get("warnings") if isinstance(result, Mapping) else None
+    for w in warnings if isinstance(warnings, list) else []:
+        ui.label(f"⚠ {w}").classes("text-sm text-amber-800").mark("identify-warning")
+    tr = _transmissibility(result)
+    with ui.card().classes("w-full"):
+        if tr is None:
+            ui.label("No transmissibility in this result.").classes("text-gray-600")
+        else:
+            ui.echart(spectrum_options(
+                tr["freq_hz"], tr["curves"], coherence=tr["coherence"],
+                title="Transmissibility |X2/X1| before/after, with the model (dashed)",
+                band_hz=tr["band_hz"], band_label="band used",
+            )).classes("w-full h-[500px]").classes(
+                "fd-transmissibility-chart").mark("transmissibility-chart")
+    grids = _grid_surfaces(result)
+    sf = _surface(result)
+    with ui.row().classes("w-full gap-4 no-wrap"):
+        for g in grids:
+            with ui.card().classes("flex-1 min-w-0"):
+                ui.label(f"Restoring force per unit mass, {g['label']}").classes(
+                    "font-semibold text-sm")
+                if g["k"] is not None and g["c"] is not None:
+                    ui.label(f"plane fit: K2/M2 = {g['k']:.4g} 1/s², C2/M2 = {g['c']:.4g} 1/s"
+                             ).classes("text-xs text-gray-600")
+                ui.echart(heatmap_options(g["r"], g["rdot"], g["grid"], title="")).classes(
+                    "w-full h-[420px]").classes("fd-surface-chart").mark("surface-chart")
+        if not grids:
+            with ui.card().classes("flex-1 min-w-0"):
+                if sf is None:
+                    ui.label("No restoring-force surface in this result.").classes(
+                        "text-gray-600")
+                else:
+                    ui.echart(surface_options(sf["r"], sf["rdot"], sf["force"])).classes(
+                        "w-full h-[420px]").classes("fd-surface-chart").mark("surface-chart")
+    text = _summary_text(result)
+    if text:
+        with ui.expansion("Summary", icon="notes").classes("w-full"):
+            ui.label(text).classes("text-xs whitespace-pre-wrap font-mono").mark(
+                "identify-summary")
+
+
+def _windows(x: Any) -> list[tuple[float, float]]:
+    out = []
+    if isinstance(x, list):
+        for w in x:
+            if isinstance(w, Mapping):
+                a, b = find(w, "start_s", "t0_s", "start"), find(w, "end_s", "t1_s", "end")
+            elif isinstance(w, list | tuple) and len(w) == 2:
+                a, b = w
+            else:
+                continue
+            try:
+                out.append((float(a), float(b)))
+            except (TypeError, ValueError):
+                continue
+    return out
+
+
+def mismatch_location(result: Mapping[str, Any]) -> dict[str, Any]:
+    """Where a diagnosis says the mismatch lives: time windows (per session label), the
+    frequency band and the (r, rdot) region, gathered from the result and its findings."""
+    windows: list[dict[str, Any]] = []
+    band = find(result, "mismatch.band_hz", "excess_band_hz")
+    region = find(result, "mismatch.region", "region")
+    for w in find(result, "mismatch.windows", "windows") or []:
+        windows.append(w if isinstance(w, Mapping) else {"start_s": w[0], "end_s": w[1]})
+    findings = result.get("findings") if isinstance(result, Mapping) else None
+    for f in findings if isinstance(findings, list) else []:
+        where = f.get("where") if isinstance(f, Mapping) else None
+        if not isinstance(where, Mapping):
+            continue
+        band = band or where.get("band_hz")
+        region = region or where.get("region")
+        for w in where.get("time_windows_s") or []:
+            if w not in windows:
+                windows.append(w)
+    return {"windows": windows, "band_hz": band, "region": region}
+
+
+def _region_text(region: Any) -> str:
+    if not isinstance(region, Mapping):
+        return ""
+    r, v = region.get("r_m"), region.get("rdot_mps")
+    if not (isinstance(r, list) and isinstance(v, list) and len(r) == len(v) == 2):
+        return ""
+    return (f"travel {1e3 * r[0]:.0f}…{1e3 * r[1]:.0f} mm, rate {1e3 * v[0]:.0f}…"
+            f"{1e3 * v[1]:.0f} mm/s")
+
+
+def _finding_card(f: Mapping[str, Any]) -> None:
+    name = str(find(f, "label", "name", "effect") or "finding").replace("_", " ")
+    conf = f.get("confidence")
+    with ui.card().classes("w-full").mark("finding"):
+        with ui.row().classes("items-center gap-2"):
+            ui.label(name).classes("font-semibold")
+            if isinstance(conf, int | float):
+                ui.badge(f"confidence {conf:.2f}",
+                         color="positive" if conf >= 0.8 else "warning")
+        expl = find(f, "explanation", "why", "description")
+        if expl:
+            ui.label(str(expl)).classes("text-sm")
+        params, stds = f.get("parameters"), f.get("std") or {}
+        if isinstance(params, Mapping) and params:
+            ui.label(", ".join(
+                f"{k} = {_fmt(v)}" + (f" ± {_fmt(stds[k], 2)}" if k in stds else "")
+                for k, v in params.items())).classes("text-sm font-mono")
+        elif isinstance(params, list):
+            rows = parameter_rows(f)
+            ui.label(", ".join(f"{p['name']} = {p['value']} ± {p['std']} {p['unit']}"
+                               for p in rows)).classes("text-sm font-mono")
+        where = f.get("where") if isinstance(f.get("where"), Mapping) else {}
+        bits = []
+        if where.get("band_hz"):
+            lo, hi = where["band_hz"]
+            bits.append(f"band {lo:.2g}–{hi:.2g} Hz")
+        wins = where.get("time_windows_s") or []
+        if wins:
+            bits.append("windows " + ", ".join(
+                f"{w.get('session', '')} {w['start_s']:.1f}–{w['end_s']:.1f} s"
+                for w in wins[:4] if isinstance(w, Mapping)))
+        if _region_text(where.get("region")):
+            bits.append(_region_text(where.get("region")))
+        if bits:
+            ui.label("where: " + "; ".join(bits)).classes("text-xs text-gray-600")
+
+
+def _fit_series(result: Mapping[str, Any]) -> list[dict[str, Any]]:
+    """Simulation-against-recording series: ``fit`` as one dict or a list per session."""
+    fit = find(result, "fit", "comparison", "time_fit")
+    items = fit if isinstance(fit, list) else [fit] if isinstance(fit, Mapping) else []
+    out = []
+    for item in items:
+        t = _arr(find(item, "time_s", "t_s"))
+        rec = _arr(find(item, "recorded", "measured", "recording"))
+        if t is None or rec is None or rec.size != t.size:
+            continue
+        series = [{"name": "recording", "x": t, "y": rec}]
+        for key, label in (("simulated_before", "linear model"),
+                           ("simulated_linear", "linear model"),
+                           ("simulated_after", "with findings"),
+                           ("simulated_augmented", "with findings")):
+            y = _arr(item.get(key))
+            if y is not None and y.size == t.size and label not in [x["name"] for x in series]:
+                series.append({"name": label, "x": t, "y": y, "dashed": True})
+        out.append({"session": str(item.get("session", item.get("label", ""))),
+                    "series": series})
+    return out
+
+
+def render_diagnosis(result: Mapping[str, Any], recording_view=None) -> None:
+    """Verdict, findings with their explanation, where the mismatch lives (time windows,
+    band, region), and the fit before/after on held-out data.
+
+    ``recording_view(windows)``, when given, draws the recording with the time windows
+    shaded (the page supplies it: it knows the session files).
+    """
+    verdict = result.get("verdict")
+    if verdict:
+        missing = verdict != "adequate"
+        ui.label("Missing physics found" if missing else
+                 "The linear model is adequate: no missing physics found").classes(
+            "text-lg font-semibold " + ("text-negative" if missing else "text-positive")).mark(
+            "diagnosis-verdict")
+    for w in result.get("warnings") or []:
+        msg = w.get("message", str(w)) if isinstance(w, Mapping) else str(w)
+        ui.label(f"⚠ {msg}").classes("text-sm text-amber-800").mark("diagnosis-warning")
+
+    ui.label("Findings").classes("text-base font-semibold")
+    findings = result.get("findings")
+    if isinstance(findings, list) and findings:
+        for f in findings:
+            if isinstance(f, Mapping):
+                _finding_card(f)
+            else:
+                ui.label(str(f))
+    else:
+        ui.label("No finding: the linear model explains the recording.").classes("text-gray-600")
+
+    rows = []
+    for key, label in (("baseline", "linear model"), ("augmented", "with the findings")):
+        part = result.get(key)
+        if isinstance(part, Mapping):
+            rows.append({"k": label, "fit": _fmt(part.get("nrmse"), 3),
+                         "val": _fmt(part.get("nrmse_validation"), 3)})
+    metrics = find(result, "metrics", "fit_metrics", "improvement")
+    if isinstance(metrics, Mapping):
+        rows += [{"k": str(k), "fit": _fmt(v), "val": ""} for k, v in metrics.items()
+                 if not isinstance(v, Mapping | list)]
+    if rows:
+        holdout = result.get("holdout", "data not used for the fit")
+        ui.label(f"Fit before and after (NRMSE of the body acceleration; held out: {holdout})"
+                 ).classes("text-base font-semibold")
+        ui.table(columns=[{"name": "k", "label": "model", "field": "k", "align": "left"},
+                          {"name": "fit", "label": "fit data", "field": "fit"},
+                          {"name": "val", "label": "held-out data", "field": "val"}],
+                 rows=rows, row_key="k").props("dense flat bordered").classes(
+            "max-w-xl").mark("fit-metrics")
+
+    where = mismatch_location(result)
+    fits = _fit_series(result)
+    for fs in fits:
+        wins = [(float(w["start_s"]), float(w["end_s"])) for w in where["windows"]
+                if isinstance(w, Mapping) and w.get("session", fs["session"]) == fs["session"]]
+        ui.echart(xy_options(fs["series"], x_name="time [s]",
+                             y_name="body acceleration [m/s2]",
+                             title=f"Simulation against recording {fs['session']}".strip(),
+                             mark_x_windows=wins)).classes("w-full h-96").classes(
+            "fd-fit-chart").mark("fit-chart")
+    if not fits and recording_view is not None and where["windows"]:
+        recording_view(where["windows"])
+
+    spec = find(result, "residual_psd", "spectrum", "residual_spectrum")
+    f_hz = _arr(find(spec, "freq_hz"))
+    band = where["band_hz"]
+    if f_hz is not None:
+        curves = {k: _arr(v) for k, v in spec.items() if k != "freq_hz"}
+        curves = {k: v for k, v in curves.items() if v is not None and v.size == f_hz.size}
+        if curves:
+            ui.echart(spectrum_options(f_hz, curves, title="Residual spectrum",
+                                       band_hz=tuple(band) if band else None)).classes(
+                "w-full h-96").classes("fd-band-chart").mark("band-chart")
+    elif band:
+        ui.label(f"The residual stands out of the noise in {band[0]:.2g}–{band[1]:.2g} Hz "
+                 "(this result holds no spectrum to draw)").classes("text-sm")
+    dmap = find(result, "departure_map", "departure")
+    region = where["region"]
+    if isinstance(dmap, Mapping) and _arr(dmap.get("r_edges_m")) is not None:
+        re_, ve = _arr(dmap["r_edges_m"]), _arr(dmap["rdot_edges_mps"])
+        ui.echart(heatmap_options(0.5 * (re_[1:] + re_[:-1]), 0.5 * (ve[1:] + ve[:-1]),
+                                  dmap.get("mean") or [],
+                                  title="Force the model misses over (r, rdot)"
+                                  + (f" — region {_region_text(region)}" if region else ""),
+                                  value_name="departure")).classes("w-full h-96").classes(
+            "fd-region-chart").mark("region-chart")
+    elif region:
+        ui.label(f"Region of the restoring-force map where the mismatch lives: "
+                 f"{_region_text(region)}").classes("text-sm").mark("region-text")
+    sf = _surface(result)
+    if sf is not None:
+        regions = find(result, "mismatch.regions", "regions")
+        ui.echart(surface_options(sf["r"], sf["rdot"], sf["force"],
+                                  title="Where the model misses (restoring-force map)",
+                                  regions=regions if isinstance(regions, list) else ())).classes(
+            "w-full h-96").classes("fd-region-chart").mark("region-chart")
+    text = _diagnosis_summary(result)
+    if text:
+        with ui.expansion("Summary", icon="notes").classes("w-full"):
+            ui.label(text).classes("text-xs whitespace-pre-wrap font-mono").mark(
+                "diagnosis-summary")
+
+
+def _diagnosis_summary(result: Mapping[str, Any]) -> str:
+    try:
+        from fielddiag.diagnose.report import format_summary
+
+        return format_summary(dict(result))
+    except Exception:  # another result layout: the panels above still show it
+        return ""

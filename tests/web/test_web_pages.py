@@ -1,0 +1,393 @@
+"""Page logic of the dashboard with nicegui's simulated user (no browser)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from nicegui import ui
+from web_helpers import friction_session
+
+from fielddiag.catalog import result_path
+from fielddiag.channels import ChannelSpec, Event, Gap, SessionMetadata
+from fielddiag.session import SessionReader, write_session
+
+pytestmark = pytest.mark.anyio
+
+
+def _the(user, marker: str):
+    """The single element with ``marker`` on the user's page."""
+    found = user.find(marker=marker).elements
+    assert len(found) == 1, f"{len(found)} elements marked {marker!r}"
+    return next(iter(found))
+
+
+def _count(marker: str) -> int:
+    """Elements with ``marker`` on the page (call inside ``with user:``)."""
+    from nicegui.element_filter import ElementFilter
+
+    return len(list(ElementFilter(marker=marker)))
+
+
+async def _wait_for(user, predicate, *, retries: int = 100) -> None:
+    import asyncio
+
+    for _ in range(retries):
+        with user:
+            if predicate():
+                return
+        await asyncio.sleep(0.05)
+    raise AssertionError("condition not met in time")
+
+
+async def test_sessions_page_lists_and_searches(dashboard_user, sessions_root: Path) -> None:
+    user = dashboard_user
+    await user.open("/")
+    await user.should_see("Sessions")
+    table = _the(user, "sessions-table")
+    await _wait_for(user, lambda: len(table.rows) == 2)
+    rows = {r["path"]: r for r in table.rows}
+    assert set(rows) == {"car-a/before.h5", "car-a/after.h5"}
+    after = rows["car-a/after.h5"]
+    assert after["vehicle"] == "test car" and after["corner"] == "front-left"
+    assert after["added_mass_kg"] == 60.0
+    assert after["duration_s"] == pytest.approx(40.0)
+    assert after["channels"] == "wheel_z, body_z, vehicle_speed"
+    assert after["processed"] == "" and after["status"] == "ok"
+    await user.should_see("2 of 2 sessions")
+
+    # search narrows the rows on the server
+    user.find(marker="search").type("after")
+    await _wait_for(user, lambda: [r["path"] for r in table.rows] == ["car-a/after.h5"])
+    await user.should_see("1 of 2 sessions")
+    user.find(marker="search").clear().type("no such car")
+    await _wait_for(user, lambda: table.rows == [])
+    await user.should_see("No session matches")
+
+    # a result file beside a session marks it processed (after a rescan)
+    result_path(sessions_root / "car-a" / "before.h5", "identify").write_text("{}")
+    user.find(marker="search").clear()
+    user.find(marker="rescan").click()
+    await _wait_for(user, lambda: {r["path"]: r["processed"] for r in table.rows}.get(
+        "car-a/before.h5") == "identify")
+
+
+async def test_empty_root_says_how_to_get_sessions(tmp_path: Path, dashboard_user_factory) -> None:
+    from fielddiag.web.app import DashboardConfig
+
+    async with dashboard_user_factory(DashboardConfig(root=tmp_path)) as user:
+        await user.open("/")
+        await user.should_see("No sessions under", retries=40)
+
+
+async def test_row_click_opens_the_session(dashboard_user) -> None:
+    user = dashboard_user
+    await user.open("/")
+    table = _the(user, "sessions-table")
+    await _wait_for(user, lambda: len(table.rows) == 2)
+    row = next(r for r in table.rows if r["path"] == "car-a/before.h5")
+    user.find(marker="sessions-table").trigger("rowClick", [{}, row, 0])
+    await user.should_see("car-a/before.h5", retries=40)
+    await user.should_see(marker="session-chart", retries=40)
+
+
+async def test_session_page_overview_and_zoom(dashboard_user) -> None:
+    user = dashboard_user
+    await user.open("/session?path=car-a%2Fbefore.h5")
+    chart = _the(user, "session-chart")
+    status = _the(user, "plot-status")
+    await _wait_for(user, lambda: len(getattr(chart, "plotted", {}).get("series", [])) == 3)
+    series = {s["name"]: s for s in chart.plotted["series"]}
+    assert set(series) == {"wheel_z", "body_z", "vehicle_speed"}
+    # 40 s at 200 Hz = 8000 samples: more than the 2000 points sent, so downsampled,
+    # and the envelope (largest and smallest sample) is kept exactly
+    wheel = np.array(series["wheel_z"]["data"], dtype=float)
+    assert 1900 < len(wheel) <= 2002
+    with SessionReader(Path(user.state.config.root) / "car-a" / "before.h5") as r:
+        raw = r.read("wheel_z")
+    assert wheel[:, 1].max() == pytest.approx(raw.max(), rel=1e-5)
+    assert wheel[:, 1].min() == pytest.approx(raw.min(), rel=1e-5)
+    assert "of 8000 samples per channel (min/max kept)" in status.text
+    assert chart.plotted["xAxis"][0]["min"] == 0.0
+    assert chart.plotted["xAxis"][0]["max"] == pytest.approx(40.0)
+    # the element's own options carry the layout only; the points go by setOption
+    assert [len(s["data"]) for s in chart.options["series"]] == [0, 0, 0]
+
+    # zoom to 25..30 % of the axis (10..12 s): the server sends that window at full detail
+    chart.client  # noqa: B018 - the element is alive
+    user.find(marker="session-chart").trigger("chart:datazoom", {"start": 25, "end": 30})
+    await _wait_for(user, lambda: status.text.startswith("10.000–12.000 s"))
+    wheel = np.array(_series(chart, "wheel_z")["data"], dtype=float)
+    assert len(wheel) == 400  # all 2 s * 200 Hz samples, nothing dropped
+    assert wheel[0, 0] >= 10.0 and wheel[-1, 0] < 12.0
+    assert "all 400 samples" in status.text
+    zoom = chart.plotted["dataZoom"][0]
+    assert zoom["start"] == pytest.approx(25.0) and zoom["end"] == pytest.approx(30.0)
+
+    # toolbox box zoom sends axis values in a batch
+    user.find(marker="session-chart").trigger(
+        "chart:datazoom", {"batch": [{"startValue": 10.0, "endValue": 10.5}]})
+    await _wait_for(user, lambda: status.text.startswith("10.000–10.500 s"))
+    user.find(marker="session-chart").trigger("chart:restore", {})
+    await _wait_for(user, lambda: status.text.startswith("0.000–40.000 s"))
+
+
+def _series(chart, name: str) -> dict:
+    return next(s for s in chart.plotted["series"] if s["name"] == name)
+
+
+async def test_session_page_marks_events_and_gaps(tmp_path: Path, dashboard_user_factory) -> None:
+    from fielddiag.web.app import DashboardConfig
+
+    t = np.concatenate([np.arange(0, 10, 0.01), np.arange(12, 20, 0.01)])
+    write_session(
+        tmp_path / "gappy.h5", SessionMetadata(vehicle="v"),
+        [ChannelSpec("wheel_z", role="wheel"), ChannelSpec("body_z", role="body")],
+        np.column_stack([np.sin(t), np.cos(t)]), sample_rate_hz=100.0, time_s=t,
+        events=[Event(3.5, "speed bump"), Event(15.0, "pothole")],
+        gaps=[Gap(10.0, 12.0, 200, "usb")],
+    )
+    async with dashboard_user_factory(DashboardConfig(root=tmp_path)) as user:
+        await user.open("/session?path=gappy.h5")
+        chart = _the(user, "session-chart")
+        await _wait_for(user, lambda: len(getattr(chart, "plotted", {}).get("series", [])) == 2)
+        s0 = chart.options["series"][0]
+        assert [m["xAxis"] for m in s0["markLine"]["data"]] == [3.5, 15.0]
+        assert [m["label"]["formatter"] for m in s0["markLine"]["data"]] == [
+            "speed bump", "pothole"]
+        assert s0["markArea"]["data"] == [[{"xAxis": 10.0, "name": "gap"}, {"xAxis": 12.0}]]
+        await user.should_see("1 gaps, 200 samples lost")
+        events = _the(user, "events-table")
+        await _wait_for(user, lambda: len(events.rows) == 2)
+        # clicking an event zooms to +-5 s around it
+        user.find(marker="events-table").trigger("rowClick", [{}, events.rows[1], 1])
+        status = _the(user, "plot-status")
+        await _wait_for(user, lambda: status.text.startswith("10.000–20.000 s"))
+
+
+@pytest.mark.parametrize("bad", ["..%2Fsecret.h5", "%2Fetc%2Fpasswd", "car-a%2F..%2F..%2Fx.h5"])
+async def test_session_page_refuses_paths_outside_root(dashboard_user, bad: str) -> None:
+    await dashboard_user.open(f"/session?path={bad}")
+    await dashboard_user.should_see("access refused" if "etc" not in bad else "absolute path")
+
+
+async def test_missing_session_is_a_readable_error(dashboard_user) -> None:
+    await dashboard_user.open("/session?path=nope.h5")
+    await dashboard_user.should_see("no session 'nope.h5'")
+
+
+async def test_identify_page_runs_the_pipeline_in_the_background(
+    dashboard_user, sessions_root: Path
+) -> None:
+    from fielddiag.web.services import identification_backend
+
+    if not identification_backend().available:
+        pytest.skip(identification_backend().reason)
+    user = dashboard_user
+    await user.open("/identify")
+    before = _the(user, "before")
+    await _wait_for(user, lambda: before.value == "car-a/before.h5")
+    user.find(marker="run-identify").click()
+    await user.should_see(marker="identify-progress")
+    await _wait_for(user, lambda: _count("parameter-table") == 1, retries=400)
+    rows = {r["key"]: r for r in _the(user, "parameter-table").rows}
+    # The simulated car has M2 = 380 kg, K2 = 24 kN/m, C2 = 1800 N s/m; the pipeline's own
+    # standard deviation is the tolerance (4 sigma), and it must be small (< 5 %).
+    for key, truth in (("sprung_mass_kg", 380.0), ("suspension_stiffness_n_per_m", 24e3),
+                       ("suspension_damping_ns_per_m", 1800.0)):
+        value, std = float(rows[key]["value"]), float(rows[key]["std"])
+        assert abs(value - truth) < 4 * std + 1e-9, (key, value, std)
+        assert std < 0.05 * truth
+    await user.should_see("identification done")
+    assert _the(user, "run-identify").enabled  # ready for another run
+    stored = json.loads(result_path(sessions_root / "car-a" / "before.h5",
+                                    "identify").read_text())
+    assert stored["sprung_mass_kg"]["value"] == pytest.approx(float(rows["sprung_mass_kg"][
+        "value"]), rel=1e-3)
+    chart = _the(user, "transmissibility-chart")
+    assert [s["name"] for s in chart.options["series"]][:2] == ["before", "before model"]
+    assert len(user.find(marker="surface-chart").elements) == 2  # before and after
+    summaries = {s.path: s for s in user.state.catalog.scan()}
+    assert summaries["car-a/before.h5"].processed == {"identify": "car-a/before.identify.json"}
+
+
+async def test_identify_page_shows_a_stored_result(
+    dashboard_user, sessions_root: Path
+) -> None:
+    user = dashboard_user
+    await user.open("/identify")
+    before = _the(user, "before")
+    after = _the(user, "after")
+    await _wait_for(user, lambda: before.value == "car-a/before.h5")
+    assert after.value == "car-a/after.h5"
+    assert _the(user, "added-mass").value == pytest.approx(60.0)
+    await user.should_see("car-a/before.h5 has no identification result yet.")
+
+    # a stored result is drawn: parameters with std, transmissibility with coherence
+    f = np.linspace(0.5, 20, 50)
+    stored = {
+        "sprung_mass_kg": {"value": 381.2, "std": 4.1},
+        "suspension_stiffness_n_per_m": {"value": 24100.0, "std": 300.0},
+        "suspension_damping_ns_per_m": {"value": 1790.0, "std": 40.0},
+        "coupling_stiffness_n_per_m": {"value": 0.0, "std": 150.0},
+        "k3_included": False,
+        "band_hz": {"low_hz": 0.8, "high_hz": 6.0, "source": "data", "note": ""},
+        "transmissibility": [
+            {"label": lbl, "freq_hz": f.tolist(),
+             "hv": {"re": (1 / (1 + 0.1 * f)).tolist(), "im": (0 * f).tolist()},
+             "model": {"re": (1 / (1 + 0.1 * f)).tolist(), "im": (0 * f).tolist()},
+             "coherence": (0.9 + 0 * f).tolist()} for lbl in ("before", "after")],
+        "restoring_force": [{"label": "before", "r_centers_m": [-0.01, 0.0, 0.01],
+                             "rdot_centers_mps": [-0.1, 0.1],
+                             "force_per_mass_mps2": [[1.0, None], [0.0, 0.1], [-1.0, -0.9]],
+                             "stiffness_per_mass": {"value": 63.2, "std": 1.0},
+                             "damping_per_mass": {"value": 4.7, "std": 0.2}}],
+        "warnings": ["short drive"],
+    }
+    result_path(sessions_root / "car-a" / "before.h5", "identify").write_text(json.dumps(stored))
+    await user.open("/identify?before=car-a%2Fbefore.h5")
+    table = None
+    await user.should_see(marker="parameter-table", retries=60)
+    table = _the(user, "parameter-table")
+    rows = {r["key"]: r for r in table.rows}
+    assert rows["sprung_mass_kg"]["value"] == "381.2"
+    assert rows["sprung_mass_kg"]["std"] == "4.1"
+    assert rows["sprung_mass_kg"]["rel_std_pct"] == "1.1"
+    assert rows["coupling_stiffness_n_per_m"]["note"] == "not significant: held at 0"
+    chart = _the(user, "transmissibility-chart")
+    names = [s["name"] for s in chart.options["series"]]
+    assert names == ["before", "before model", "after", "after model", "coherence before",
+                     "coherence after"]
+    assert chart.options["series"][0]["markArea"]["data"][0][0]["xAxis"] == 0.8
+    heat = _the(user, "surface-chart")
+    assert [0, 0, 1.0] in heat.options["series"][0]["data"]
+    assert len(heat.options["series"][0]["data"]) == 5  # the empty bin stays blank
+    await user.should_see("⚠ short drive")
+
+
+async def test_diagnose_page_runs_the_diagnosis(dashboard_user, sessions_root: Path) -> None:
+    from fielddiag.web.services import diagnosis_backend
+
+    if not diagnosis_backend().available:
+        pytest.skip(diagnosis_backend().reason)
+    path = friction_session(sessions_root / "car-b")
+    user = dashboard_user
+    await user.open("/diagnose?session=car-b%2Ffriction.h5")
+    sel = _the(user, "diagnose-session")
+    await _wait_for(user, lambda: sel.value == "car-b/friction.h5")
+    await user.should_see("car-b/friction.h5 has not been diagnosed yet.")
+    user.find(marker="run-diagnose").click()
+    await _wait_for(user, lambda: _count("diagnosis-verdict") == 1, retries=1200)
+    stored = json.loads(result_path(path, "diagnose").read_text())
+    # 150 N of dry friction on a 380 kg corner: the engine must name it
+    assert stored["verdict"] == "missing_physics"
+    assert stored["findings"][0]["effect"] == "coulomb_friction"
+    await user.should_see("Missing physics found")
+    await user.should_see("coulomb friction")
+    await user.should_see(stored["findings"][0]["explanation"])
+    rows = {r["k"]: r for r in _the(user, "fit-metrics").rows}
+    assert float(rows["with the findings"]["val"]) < float(rows["linear model"]["val"])
+    await user.should_see("diagnosis done")
+
+
+async def test_diagnose_page_shows_a_stored_result(dashboard_user, sessions_root: Path) -> None:
+    user = dashboard_user
+    stored = {
+        "mode": "pair", "verdict": "missing_physics",
+        "baseline": {"nrmse": 0.2, "nrmse_validation": 0.21},
+        "augmented": {"nrmse": 0.04, "nrmse_validation": 0.05},
+        "findings": [{
+            "effect": "bump_stop", "confidence": 0.93,
+            "parameters": {"gap_m": 0.031, "stiffness_n_per_m": 2.1e5},
+            "std": {"gap_m": 0.002, "stiffness_n_per_m": 1.5e4},
+            "explanation": "a bump stop engages after 31 mm of compression",
+            "where": {"band_hz": [4.0, 12.0],
+                      "time_windows_s": [{"session": "before", "start_s": 12.0, "end_s": 13.0,
+                                          "rms_ratio": 3.2}],
+                      "region": {"r_m": [-0.05, -0.03], "rdot_mps": [-0.2, 0.1]}},
+        }],
+        "warnings": [{"kind": "clipping", "message": "the wheel channel clips at 16 g"}],
+        "sessions": [{"label": "before", "name": "before.h5", "added_mass_kg": 0.0},
+                     {"label": "after", "name": "after.h5", "added_mass_kg": 60.0}],
+        "holdout": "last 30 % of every drive",
+    }
+    result_path(sessions_root / "car-a" / "before.h5", "diagnose").write_text(json.dumps(stored))
+    await user.open("/diagnose?session=car-a%2Fbefore.h5")
+    await user.should_see("a bump stop engages after 31 mm of compression", retries=60)
+    await user.should_see("bump stop")
+    await user.should_see("gap_m = 0.031 ± 0.002, stiffness_n_per_m = 210000 ± 15000")
+    await user.should_see("⚠ the wheel channel clips at 16 g")
+    await user.should_see("band 4–12 Hz")
+    await user.should_see("travel -50…-30 mm, rate -200…100 mm/s")
+    rows = {r["k"]: (r["fit"], r["val"]) for r in _the(user, "fit-metrics").rows}
+    assert rows == {"linear model": ("0.2", "0.21"), "with the findings": ("0.04", "0.05")}
+    # the time window is shaded on the recorded body acceleration of the 'before' drive
+    await _wait_for(user, lambda: _count("windows-chart") == 1, retries=200)
+    chart = _the(user, "windows-chart")
+    assert chart.options["series"][0]["markArea"]["data"] == [[{"xAxis": 12.0},
+                                                               {"xAxis": 13.0}]]
+    assert chart.options["series"][0]["name"] == "car-a/before.h5 body"
+
+
+async def test_navigation_keeps_one_page(dashboard_user) -> None:
+    user = dashboard_user
+    await user.open("/")
+    for label, text in (("Identification", "before (as the car is)"),
+                        ("Diagnosis", "Run diagnosis"), ("Sessions", "Import a CSV recording")):
+        user.find(marker=f"nav-{label}").click()
+        await user.should_see(text, retries=40)
+    assert isinstance(_the(user, "root-label"), ui.label)
+
+
+async def test_csv_upload_imports_a_session(dashboard_user, sessions_root: Path) -> None:
+    from nicegui.elements.upload_files import SmallFileUpload
+
+    user = dashboard_user
+    await user.open("/")
+    t = np.arange(0, 5, 0.01)
+    lines = ["time_s,acc_wheel,acc_body,speed_kmh"] + [
+        f"{x:.2f},{np.sin(7 * x):.5f},{9.81 + 0.1 * np.sin(x):.5f},{36.0:.1f}" for x in t]
+    upload = _the(user, "csv-upload")
+    await upload.handle_uploads([SmallFileUpload("drive 7.csv", "text/csv",
+                                                 "\n".join(lines).encode())])
+    await user.should_see("4 columns; check the mapping and press Import")
+    assert _the(user, "csv-time").value == "time_s"
+    assert _the(user, "csv-wheel").value == "acc_wheel"
+    assert _the(user, "csv-body").value == "acc_body"
+    assert _the(user, "csv-speed").value == "speed_kmh"
+    _the(user, "csv-speed").set_value(None)  # km/h would need --speed-unit; skip it here
+    _the(user, "csv-vehicle").set_value("uploaded car")
+    user.find(marker="csv-import").click()
+    await user.should_see("imported imports/drive_7.h5", retries=100)
+    from fielddiag.session import SessionReader
+
+    with SessionReader(sessions_root / "imports" / "drive_7.h5") as s:
+        assert s.n_samples == len(t) and s.metadata.vehicle == "uploaded car"
+        np.testing.assert_allclose(s.read_role("wheel"), np.round(np.sin(7 * t), 5))
+    table = _the(user, "sessions-table")
+    await _wait_for(user, lambda: "imports/drive_7.h5" in [r["path"] for r in table.rows])
+    # the same name again is refused, nothing is overwritten
+    await upload.handle_uploads([SmallFileUpload("drive 7.csv", "text/csv",
+                                                 "\n".join(lines).encode())])
+    await user.should_see(marker="csv-import")
+    user.find(marker="csv-import").click()
+    await user.should_see("imports/drive_7.h5 already exists")
+
+
+async def test_csv_upload_errors_are_readable(dashboard_user) -> None:
+    from nicegui.elements.upload_files import SmallFileUpload
+
+    user = dashboard_user
+    await user.open("/")
+    upload = _the(user, "csv-upload")
+    # a file the browser refused for its size: a clear notification
+    user.find(marker="csv-upload").trigger("rejected", [])
+    await user.should_see("larger than the upload limit of 200 MB")
+    # a bad row: the importer's row-exact message
+    await upload.handle_uploads([SmallFileUpload(
+        "bad.csv", "text/csv", b"t,wheel,body\n0,1,2\n0.01,x,2\n0.02,1,2\n")])
+    await user.should_see(marker="csv-import")
+    user.find(marker="csv-import").click()
+    await user.should_see("row 3", retries=100)
