@@ -205,8 +205,10 @@ def _grey_fit(
     if initial:
         allowed = set(model.param_keys) | {"body_mass_kg"}
         initial = {k: v for k, v in initial.items() if k in allowed}
-    result = fit_greybox(fits, model, initial=initial, substeps=substeps, max_iterations=40)
-    runs = validation_runs(result, [p.val for p in prepared], substeps=substeps)
+    # trial steps of Levenberg-Marquardt may overflow before being rejected: not news
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        result = fit_greybox(fits, model, initial=initial, substeps=substeps, max_iterations=40)
+        runs = validation_runs(result, [p.val for p in prepared], substeps=substeps)
     res_val = np.concatenate([r[2] for r in runs])
     meas_val = np.concatenate([r[1] for r in runs])
     vals, stds = _values(result)
@@ -406,6 +408,36 @@ class Diagnosis:
             "explanation": explain(effect, params, base.values, c.values, self.mode),
         }
 
+    def plot_data(self, max_points: int = 1500) -> dict:
+        """Compact arrays for a dashboard: held-out fits, residual spectrum, departure map."""
+        fits = []
+        aug_runs = {r[0].name: r for r in self.chosen.runs}
+        for sf, measured, residual, t in self.baseline.runs:
+            step = max(1, t.size // max_points)
+            aug = aug_runs.get(sf.name)
+            sim_aug = (aug[1] - aug[2]) if aug is not None else measured - residual
+            fits.append(
+                {
+                    "session": sf.name,
+                    "time_s": t[::step].tolist(),
+                    "recorded": measured[::step].tolist(),
+                    "simulated_linear": (measured - residual)[::step].tolist(),
+                    "simulated_augmented": sim_aug[::step].tolist(),
+                }
+            )
+        dmap = None
+        if self.departure is not None:
+            dmap = {
+                "r_edges_m": self.departure.r_edges_m.tolist(),
+                "rdot_edges_mps": self.departure.rdot_edges_mps.tolist(),
+                "mean": [
+                    [None if not np.isfinite(v) else float(v) for v in row]
+                    for row in self.departure.mean
+                ],
+                "count": self.departure.count.tolist(),
+            }
+        return {"fit": fits, "residual_psd": self.residual_psd, "departure_map": dmap}
+
     def _where(self) -> dict:
         return {
             "band_hz": list(self.excess_band_hz) if self.excess_band_hz else None,
@@ -466,6 +498,7 @@ class Diagnosis:
                 for d in self.drives
             ],
             "holdout": "last 30 % of every drive",
+            **self.plot_data(),
         }
 
 
@@ -645,7 +678,11 @@ def _locate(
     top = (f > 0.7 * band[1]) & (f <= band[1])
     noise = float(np.median(mean_psd[top])) if np.any(top) else 0.0
     exb = excess_band(f, mean_psd, 3.0 * noise, band_hz=(band[0], band[1]))
-    return windows[:8], exb, {"freq_hz": f.tolist(), "psd": mean_psd.tolist(), "noise_psd": noise}
+    return (
+        windows[:8],
+        exb,
+        {"freq_hz": f.tolist(), "psd": mean_psd.tolist(), "noise_psd": [noise] * len(f)},
+    )
 
 
 def _model_static_offset(model: ForceModel, th: np.ndarray, load_n: float) -> float:
