@@ -865,11 +865,11 @@ def diagnose_drives(
     sel = select_model(base.candidate, [f.candidate for f in fits[1:]])
     chosen = next(f for f in fits if f.candidate is sel.chosen)
     say("looking for structure no effect explains")
-    unexplained, dmap = _unexplained(chosen, prepared, coupling)
-    region = None
-    if dmap is not None:
-        reg = dmap.region()
-        region = reg
+    unexplained, _ = _unexplained(chosen, prepared, coupling)
+    # where the restoring force departs from the *linear* surface (what the findings fix)
+    r, v, dep, _ = _departure(base, prepared, coupling)
+    dmap = departure_map(r, v, dep, bins=12)
+    region = dmap.region()
     return Diagnosis(
         mode=mode,
         drives=drives,
