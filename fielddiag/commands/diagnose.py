@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 from fielddiag.errors import FieldDiagError
@@ -63,41 +64,29 @@ def run(args: argparse.Namespace) -> int:
             raise FieldDiagError(f"{p} does not exist")
     if args.json and not Path(args.json).resolve().parent.is_dir():
         raise FieldDiagError(f"folder of {args.json} does not exist; create it first")
+    is_rig = False
     if len(paths) == 1:
         with SessionReader(paths[0]) as s:
             is_rig = bool(s.channels_for_role("force"))
-        if is_rig:
-            from fielddiag.diagnose.rig import diagnose_rig, rig_data_from_session
+    if is_rig:
+        from fielddiag.diagnose.rig import diagnose_rig, rig_data_from_session
+        from fielddiag.plots.diagnose import write_rig_plots as write_plots
 
-            with SessionReader(paths[0]) as s:
-                data = rig_data_from_session(s)
-            result = diagnose_rig(data)
-            out = result.to_dict()
-            if args.plots:
-                from fielddiag.plots.diagnose import write_rig_plots
-
-                for png in write_rig_plots(result, args.plots):
-                    print(f"plot written: {png}")
-        else:
-            from fielddiag.diagnose.engine import diagnose_sessions
-
-            result = diagnose_sessions(paths, added_mass_kg=args.added_mass)
-            out = result.to_dict()
-            if args.plots:
-                from fielddiag.plots.diagnose import write_diagnosis_plots
-
-                for png in write_diagnosis_plots(result, args.plots):
-                    print(f"plot written: {png}")
+        with SessionReader(paths[0]) as s:
+            result = diagnose_rig(rig_data_from_session(s))
     else:
         from fielddiag.diagnose.engine import diagnose_sessions
+        from fielddiag.plots.diagnose import write_diagnosis_plots as write_plots
 
-        result = diagnose_sessions(paths, added_mass_kg=args.added_mass)
-        out = result.to_dict()
-        if args.plots:
-            from fielddiag.plots.diagnose import write_diagnosis_plots
-
-            for png in write_diagnosis_plots(result, args.plots):
-                print(f"plot written: {png}")
+        result = diagnose_sessions(
+            paths,
+            added_mass_kg=args.added_mass,
+            progress=lambda msg: print(f"  {msg}", file=sys.stderr),
+        )
+    out = result.to_dict()
+    if args.plots:
+        for png in write_plots(result, args.plots):
+            print(f"plot written: {png}")
     _print_summary(out)
     if args.json:
         Path(args.json).write_text(json.dumps(out, indent=2))
