@@ -473,6 +473,7 @@ class Diagnosis:
             "findings": findings,
             "warnings": warnings,
             "linear_model": _linear_summary(base.values, self.mode),
+            "augmented_model": _linear_summary(aug.values, self.mode),
             "band_hz": list(self.band_hz),
             "candidates": [
                 {
@@ -520,6 +521,23 @@ def _linear_summary(vals: dict[str, float], mode: str) -> dict[str, float]:
     return out
 
 
+_LINEAR_NAMES = {
+    "linear_damper.suspension_damping_ns_per_m": "damping",
+    "linear_spring.suspension_stiffness_n_per_m": "stiffness",
+    "body_mass_kg": "sprung mass",
+}
+
+
+def _absorbed(base: dict[str, float], chosen: dict[str, float]) -> str:
+    """How the linear fit distorted its own parameters to absorb the effect."""
+    parts = []
+    for key, label in _LINEAR_NAMES.items():
+        b, c = base.get(key), chosen.get(key)
+        if b and c and np.isfinite(b) and np.isfinite(c) and abs(b / c - 1) >= 0.03:
+            parts.append(f"{100 * (b / c - 1):+.0f} % {label}")
+    return ": the linear fit was hiding it as " + ", ".join(parts) if parts else ""
+
+
 def explain(
     effect: str,
     params: dict[str, float],
@@ -529,29 +547,15 @@ def explain(
 ) -> str:
     """A sentence a technician can act on."""
     per = "" if mode == "pair" else " per kg of sprung mass"
-    c_lin = base.get("linear_damper.suspension_damping_ns_per_m")
-    k_lin = base.get("linear_spring.suspension_stiffness_n_per_m")
-    c_new = chosen.get("linear_damper.suspension_damping_ns_per_m")
-    k_new = chosen.get("linear_spring.suspension_stiffness_n_per_m")
+    hid = _absorbed(base, chosen)
     if effect == "coulomb_friction":
         f = next(iter(params.values()))
-        hid = ""
-        if c_lin and c_new:
-            hid = (
-                f": the linear fit was hiding it as {100 * (c_lin / c_new - 1):.0f} % extra damping"
-            )
         return (
             f"dry friction of about {f:.3g} N{per} in the strut{hid}. Check the strut "
             "top mount, bushings and damper seals for binding"
         )
     if effect == "cubic_stiffness":
         k3 = next(iter(params.values()))
-        hid = ""
-        if k_lin and k_new:
-            hid = (
-                f"; the linear fit was reporting {100 * (k_lin / k_new - 1):+.0f} % "
-                "stiffness to make up for it"
-            )
         return (
             f"progressive spring: the stiffness rises with travel (cubic term {k3:.3g} "
             f"N/m3{per}){hid}. Expected for progressive-rate springs; otherwise check "
@@ -562,7 +566,7 @@ def explain(
         k = params.get("stiffness_n_per_m", params.get("stiffness_n_per_m_per_kg", float("nan")))
         return (
             f"bump stop reached {1000 * gap:.0f} mm into compression from the unloaded ride "
-            f"height, stiffness {k:.3g} N/m{per}; it acts only over the largest bumps. "
+            f"height, stiffness {k:.3g} N/m{per}; it acts only over the largest bumps{hid}. "
             "Check ride height and the bump-stop rubber if it engages too early"
         )
     if effect == "asymmetric_damping":
@@ -575,7 +579,7 @@ def explain(
         )
         return (
             f"the damper is asymmetric: {cc:.4g} N s/m{per} in compression, {cr:.4g} in "
-            f"rebound (ratio {cr / cc:.2f}); a single damping value misrepresents it"
+            f"rebound (ratio {cr / cc:.2f}); a single damping value misrepresents it{hid}"
         )
     return effect
 
