@@ -52,7 +52,9 @@ a case named (and the two-effect cases alone), false alarms on linear cases (ver
 adequate), parameter error |estimate/true - 1| over the true effects' parameters (median,
 worst), outside the library -> unexplained, sensor problems flagged, wall time (diagnosis
 only, simulation excluded; the peer's includes its integration). Also shown: effects named
-on the sensor-problem cases (a clean suspension; such names are spurious).
+on the sensor-problem cases (a clean suspension; such names are spurious). Each tool runs
+each case in a forked child limited to TIME_LIMIT_S (600 s); a hang or an exception is
+"no answer" (no effects, no warnings, not a false alarm).
 
 Usage: python benchmarks/bench_peer_pysindy.py [NAME ...]
 """
@@ -60,6 +62,7 @@ Usage: python benchmarks/bench_peer_pysindy.py [NAME ...]
 from __future__ import annotations
 
 import hashlib
+import multiprocessing
 import sys
 import time
 from pathlib import Path
@@ -94,6 +97,7 @@ MIN_ACTIVE = 10  # a bump-stop ramp must act on at least this many samples to be
 THRESHOLDS = np.logspace(-3.5, -0.5, 13)  # STLSQ threshold / norm of the target
 KNEE_TOLERANCE = 0.01  # sparsest model within 1 % of the best held-out NRMSE
 NAMING_RISE = 0.01  # held-out NRMSE must rise > 1 % when the effect is dropped
+TIME_LIMIT_S = 600.0  # per tool and case; beyond it the case counts as no answer
 
 
 # ----------------------------------------------------------------------------- peer
@@ -439,7 +443,14 @@ def score(rows: list[dict]) -> dict[str, Any]:
         ),
         "all_named": (sum(all_named(r) for r in effect_cases), len(effect_cases)),
         "pairs_named": (sum(all_named(r) for r in pairs), len(pairs)),
-        "false_alarms": (sum(r["out"]["verdict"] != "adequate" for r in linear), len(linear)),
+        "false_alarms": (
+            sum(r["out"]["verdict"] == "missing_physics" for r in linear),
+            len(linear),
+        ),
+        "no_answer": (
+            sum(r["out"]["verdict"] in ("timeout", "error") for r in rows),
+            len(rows),
+        ),
         "err_median": errs[len(errs) // 2] if errs else float("nan"),
         "err_worst": errs[-1] if errs else float("nan"),
         "n_errs": len(errs),
@@ -451,6 +462,42 @@ def score(rows: list[dict]) -> dict[str, Any]:
         "sensor_spurious": (sum(bool(r["named"]) for r in sensor_only), len(sensor_only)),
         "wall": sum(r["wall"] for r in rows),
     }
+
+
+def _child(func, name: str, conn) -> None:
+    try:
+        conn.send(func(name))
+    except Exception as exc:  # reported as no answer, the run goes on
+        conn.send({"error": f"{type(exc).__name__}: {exc}"})
+
+
+def _no_answer(name: str, verdict: str, wall: float) -> dict:
+    out = {"verdict": verdict, "findings": [], "warnings": []}
+    return {"name": name, "sc": SCENARIOS[name], "out": out, "named": [], "errors": [],
+            "warnings": [], "wall": wall}
+
+
+def run_limited(func, name: str, limit_s: float = TIME_LIMIT_S) -> dict:
+    """``func(name)`` in a forked child, killed after ``limit_s`` (a hang is no answer)."""
+    ctx = multiprocessing.get_context("fork")
+    recv, send = ctx.Pipe(duplex=False)
+    proc = ctx.Process(target=_child, args=(func, name, send), daemon=True)
+    t0 = time.perf_counter()
+    proc.start()
+    send.close()
+    try:
+        result = recv.recv() if recv.poll(limit_s) else None
+    except EOFError:  # the child died
+        result = {"error": f"exit code {proc.exitcode}"}
+    if result is None:
+        proc.kill()
+        proc.join()
+        return _no_answer(name, "timeout", time.perf_counter() - t0)
+    proc.join()
+    if "error" in result:
+        print(f"  ({func.__name__} failed on {name}: {result['error']})")
+        return _no_answer(name, "error", time.perf_counter() - t0)
+    return result
 
 
 def _case_line(tool: str, r: dict) -> str:
@@ -477,23 +524,25 @@ def main() -> None:
     ours, peer = [], []
     for name in names:
         sc = SCENARIOS[name]
-        p = run_peer(name)
-        f = run_fielddiag(name)
+        p = run_limited(run_peer, name)
+        f = run_limited(run_fielddiag, name)
         again = simulate_scenario(sc)
         same = _fingerprint(again[0].wheel_accel_mps2, again[0].body_accel_mps2,
                             again[1].wheel_accel_mps2, again[1].body_accel_mps2)
-        if same != p["out"]["fingerprint"]:
+        if p["out"].get("fingerprint", same) != same:
             raise RuntimeError(f"{name}: the simulation is not reproducible; no fair comparison")
         ours.append(f)
         peer.append(p)
         po = p["out"]
-        thr = "- (linear LS)" if np.isinf(po["threshold"]) else f"{po['threshold']:.2g}"
         print(
             f"{name:<24} expected {','.join(sc.expected_effects) or '-'}"
             f" / warn {','.join(sc.expected_warnings) or '-'}",
         )
         print(_case_line("fielddiag", f))
-        print(_case_line("pysindy", p))
+        print(_case_line("pysindy", p), flush=True)
+        if "threshold" not in po:
+            continue
+        thr = "- (linear LS)" if np.isinf(po["threshold"]) else f"{po['threshold']:.2g}"
         print(
             f"  {'':<10} pysindy: M {po['sprung_mass_kg']:.0f} kg (true {sc.car.body_mass_kg:g}),"
             f" sag {po['sag_factor']:.2f} x linear, threshold {thr}, held-out NRMSE linear "
@@ -522,6 +571,7 @@ def main() -> None:
         ("sensor problems flagged", _frac(s_f["sensors"]), _frac(s_p["sensors"]) + " (no checks)"),
         ("effects named on sensor cases", _frac(s_f["sensor_spurious"]),
          _frac(s_p["sensor_spurious"])),
+        ("no answer (timeout / error)", _frac(s_f["no_answer"]), _frac(s_p["no_answer"])),
         ("wall time", f"{s_f['wall']:.0f} s", f"{s_p['wall']:.0f} s"),
     ]
     print(f"\n{'score':<36} {'fielddiag':>18} {'pysindy':>24}")
