@@ -848,6 +848,11 @@ def diagnose_drives(
 
     # every single effect gets the full fit (started from its signature fit); pairs only
     # of the single effects that predict held-out data better than the linear model
+    if any(w.kind in BLOCKING_WARNINGS for w in warnings):
+        # the data are known bad (clipped, misaligned, rescaled): findings would be
+        # withheld anyway, and fitting effects to corrupted data only wastes time
+        say("data problems found: effects are not fitted")
+        effects = ()
     singles = [f for f in (grey((e,)) for e in effects) if f is not None]
     fits += singles
     useful = sorted(

@@ -611,6 +611,11 @@ def levenberg_marquardt(
     n = x.size
     bounded = bool(np.any(np.isfinite(lower)) or np.any(np.isfinite(upper)))
     for it in range(1, max_iterations + 1):
+        if not (np.all(np.isfinite(jac)) and np.all(np.isfinite(r))):
+            # the simulation blew up at the current point: no step can be computed
+            message = "stopped: the model diverged (non-finite residual or Jacobian)"
+            it -= 1
+            break
         g = jac.T @ r
         free = ~(((x <= lower) & (g > 0)) | ((x >= upper) & (g < 0)))
         if np.max(np.abs(g[free]) / dscale[free], initial=0.0) <= gtol * max(
