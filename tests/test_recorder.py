@@ -27,7 +27,7 @@ from fielddiag.cli import main as cli_main
 from fielddiag.errors import DeviceError, SessionError
 from fielddiag.recorder import Recorder, _Ring, format_status, record_virtual_drive
 from fielddiag.session import SessionReader
-from tests._daq_helpers import missing_seqs, noise_signals
+from _daq_helpers import missing_seqs, noise_signals
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -19,7 +19,7 @@ from drivers.can_vehicle import CanLogSource
 from drivers.serial_daq import SerialDAQSource, SerialTextSource, list_ports
 from drivers.virtual import PtyLink, VirtualDAQ
 from fielddiag.errors import DeviceError
-from tests._daq_helpers import collect, expected_samples, missing_seqs, noise_signals
+from _daq_helpers import collect, expected_samples, missing_seqs, noise_signals
 
 
 def _open(daq: VirtualDAQ, query: str = "") -> SerialDAQSource:
