@@ -17,11 +17,11 @@ from __future__ import annotations
 import os
 import threading
 from collections.abc import Iterable, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path, PurePosixPath, PureWindowsPath
 from typing import Any
 
-from fielddiag.errors import SessionError
+from fielddiag.errors import FieldDiagError, SessionError
 
 SESSION_SUFFIXES = (".h5", ".hdf5")
 RESULT_SUFFIX = ".json"
@@ -108,6 +108,10 @@ class SessionSummary:
     error : str
         Empty for a readable session; otherwise why it could not be read (the session
         is still listed, so a broken file is visible).
+    batch : dict
+        What ``fielddiag reprocess`` recorded for the pair this session belongs to (empty
+        when none): ``role`` (before/after), ``partner`` (the other session, relative to
+        the root), ``status`` (done/failed), ``result`` (one line), ``message``, ``when``.
     """
 
     path: str
@@ -131,6 +135,7 @@ class SessionSummary:
     modified_unix_s: float = 0.0
     processed: dict[str, str] = field(default_factory=dict)
     error: str = ""
+    batch: dict[str, Any] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -195,6 +200,7 @@ class Catalog:
         if not self.root.is_dir():
             raise SessionError(f"sessions folder {self.root} does not exist or is not a folder")
         self._cache: dict[str, tuple[int, int, SessionSummary]] = {}
+        self._batch_cache: tuple[Any, dict[str, dict[str, Any]]] | None = None
         self._lock = threading.Lock()
 
     def resolve(self, relative: str) -> Path:
@@ -230,7 +236,35 @@ class Catalog:
         with self._lock:
             for key in set(self._cache) - seen:
                 del self._cache[key]
+        batch = self._batch_rows()
+        if batch:
+            found = [_with_batch(s, batch[s.path]) if s.path in batch else s for s in found]
         return found
+
+    def _batch_rows(self) -> dict[str, dict[str, Any]]:
+        """Session (relative to the root) -> its pair's row in the batch catalog, cached by
+        the catalog file's modification time. A broken catalog is ignored (the list must
+        still show)."""
+        from fielddiag.batch.store import find_catalog
+        from fielddiag.batch.summary import batch_entries
+
+        path = find_catalog(self.root)
+        if path is None:
+            return {}
+        stamp = tuple(
+            (q.stat().st_mtime_ns, q.stat().st_size) if q.exists() else (0, 0)
+            for q in (path, path.with_name(path.name + "-wal"))
+        )
+        with self._lock:
+            if self._batch_cache is not None and self._batch_cache[0] == (path, stamp):
+                return self._batch_cache[1]
+        try:
+            entries = batch_entries(path, self.root)
+        except FieldDiagError:
+            entries = {}
+        with self._lock:
+            self._batch_cache = ((path, stamp), entries)
+        return entries
 
     def summary(self, relative: str) -> SessionSummary:
         """The summary of one session given by its path relative to the root."""
@@ -243,7 +277,10 @@ class Catalog:
             raise SessionError(f"no session {relative!r} under {self.root}")
         names = sorted(os.listdir(path.parent))
         results = [n for n in names if n.endswith(RESULT_SUFFIX)]
-        return _with_processed(summary, _results_for(path.name, results, path.parent, self.root))
+        summary = _with_processed(summary, _results_for(path.name, results, path.parent,
+                                                        self.root))
+        batch = self._batch_rows().get(rel)
+        return _with_batch(summary, batch) if batch else summary
 
     def _summary_cached(self, path: Path, rel: str) -> SessionSummary | None:
         try:
@@ -276,6 +313,13 @@ def _results_for(
     return dict(sorted(out.items()))
 
 
+def _with_batch(summary: SessionSummary, batch: dict[str, Any]) -> SessionSummary:
+    """The summary with its batch entry; the pair's results count as processed for both
+    sessions of the pair."""
+    processed = {**batch.get("results", {}), **summary.processed}
+    return replace(summary, batch=batch, processed=dict(sorted(processed.items())))
+
+
 def _with_processed(summary: SessionSummary, processed: dict[str, str]) -> SessionSummary:
     if processed == summary.processed:
         return summary
@@ -293,7 +337,8 @@ def filter_sessions(sessions: Sequence[SessionSummary], query: str) -> list[Sess
     """Sessions matching every word of ``query`` (case-insensitive).
 
     A word matches the path, vehicle, corner, operator, creation date, notes, a channel or
-    signal name, or a processed kind (``identify``). An empty query keeps everything.
+    signal name, a processed kind (``identify``), or the batch result (``failed``,
+    ``coulomb_friction``). An empty query keeps everything.
     """
     words = query.lower().split()
     if not words:
@@ -301,7 +346,8 @@ def filter_sessions(sessions: Sequence[SessionSummary], query: str) -> list[Sess
     out = []
     for s in sessions:
         hay = " ".join(
-            [*(str(getattr(s, f)) for f in _SEARCH_FIELDS), *s.channels, *s.signals, *s.processed]
+            [*(str(getattr(s, f)) for f in _SEARCH_FIELDS), *s.channels, *s.signals, *s.processed,
+             str(s.batch.get("result", "")), str(s.batch.get("status", ""))]
         ).lower()
         if all(w in hay for w in words):
             out.append(s)

@@ -577,19 +577,19 @@ class SessionWriter:
 
 
 # ====================================================================== reading
-def _open_h5(path: Path) -> tuple[h5py.File, bool]:
-    """Open a session file; returns (file, opened_in_swmr_mode)."""
+def _open_h5(path: Path) -> tuple[h5py.File, bool, str]:
+    """Open a session file; returns (file, opened_in_swmr_mode, why plain mode failed)."""
     if not path.exists():
         raise SessionError(f"{path} does not exist")
     if path.is_dir():
         raise SessionError(f"{path} is a folder, not a session file")
     try:
-        return h5py.File(path, "r", libver="latest"), False
+        return h5py.File(path, "r", libver="latest"), False, ""
     except OSError as first:
         # A writer still has it open, or was killed: SWMR read mode opens it anyway and
         # sees everything flushed.
         try:
-            return h5py.File(path, "r", libver="latest", swmr=True), True
+            return h5py.File(path, "r", libver="latest", swmr=True), True, str(first)
         except OSError:
             raise SessionError(
                 f"{path} is not a readable session file ({first}); is it an HDF5 file "
@@ -621,9 +621,17 @@ class SessionReader:
 
     def __init__(self, path: str | os.PathLike) -> None:
         self.path = Path(path)
-        self._file, self.swmr = _open_h5(self.path)
+        self._file, self.swmr, why_swmr = _open_h5(self.path)
         try:
             self._load_header()
+            if "truncated file" in why_swmr and self.closed_cleanly:
+                # Closed cleanly by its writer, shorter now: cut by a copy or a full disk.
+                # SWMR mode would open it and read the missing part as zeros.
+                raise SessionError(
+                    f"{self.path} is truncated ({os.path.getsize(self.path)} bytes, its "
+                    f"writer closed it complete: {why_swmr.split('(', 1)[-1].rstrip(')')}); "
+                    "copy it again from the original"
+                )
         except SessionError:
             self._file.close()
             raise

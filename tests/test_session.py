@@ -204,6 +204,16 @@ def test_bad_files_get_clear_errors(tmp_path):
         SessionReader(tmp_path / "other.h5")
 
 
+def test_a_truncated_copy_is_refused_not_read_as_zeros(tmp_path):
+    path = tmp_path / "cut.h5"
+    data = np.arange(200_000, dtype="f8").reshape(-1, 2) + 1.0
+    write_session(path, META, [ChannelSpec("x"), ChannelSpec("y")], data, sample_rate_hz=500.0)
+    whole = path.read_bytes()
+    path.write_bytes(whole[: len(whole) // 2])  # an interrupted copy
+    with pytest.raises(SessionError, match=r"is truncated \(\d+ bytes.*copy it again"):
+        SessionReader(path)
+
+
 def test_read_while_recording(tmp_path):
     path = tmp_path / "live.h5"
     w = SessionWriter(path, META, [ChannelSpec("x")], sample_rate_hz=100.0, flush_interval_s=0.05)

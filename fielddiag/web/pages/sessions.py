@@ -22,6 +22,8 @@ COLUMNS = [
     {"name": "processed", "label": "Processed", "field": "processed", "sortable": True,
      "align": "left"},
     {"name": "status", "label": "Status", "field": "status", "sortable": True, "align": "left"},
+    {"name": "batch", "label": "Batch result (fielddiag reprocess)", "field": "batch",
+     "sortable": True, "align": "left"},
 ]
 
 _LINK_SLOT = r"""
@@ -36,6 +38,16 @@ _PROCESSED_SLOT = r"""
   <q-badge v-for="k in (props.value ? props.value.split(', ') : [])" :key="k" :label="k"
            color="positive" class="q-mr-xs"/>
   <span v-if="!props.value" class="text-grey-6">not yet</span>
+</q-td>
+"""
+_BATCH_SLOT = r"""
+<q-td :props="props">
+  <span v-if="props.row.batch_status === 'failed'" class="text-negative">
+    failed: {{ props.row.batch_message }}</span>
+  <span v-else-if="props.value">{{ props.value }}
+    <span class="text-grey-6">({{ props.row.batch_role }} of {{ props.row.batch_partner }})
+    </span></span>
+  <span v-else class="text-grey-6">-</span>
 </q-td>
 """
 _STATUS_SLOT = r"""
@@ -74,6 +86,11 @@ def row_of(s: SessionSummary) -> dict:
         "processed": ", ".join(s.processed),
         "status": status,
         "error": s.error,
+        "batch": s.batch.get("result", ""),
+        "batch_status": s.batch.get("status", ""),
+        "batch_message": s.batch.get("message", ""),
+        "batch_role": s.batch.get("role", ""),
+        "batch_partner": s.batch.get("partner", ""),
     }
 
 
@@ -104,6 +121,7 @@ def render(state) -> None:
     table.add_slot("body-cell-duration_s", _DURATION_SLOT)
     table.add_slot("body-cell-processed", _PROCESSED_SLOT)
     table.add_slot("body-cell-status", _STATUS_SLOT)
+    table.add_slot("body-cell-batch", _BATCH_SLOT)
     table.on("rowClick", lambda e: ui.navigate.to(session_link(e.args[1]["path"])))
     empty = ui.label("").classes("text-gray-600").mark("sessions-empty")
 
