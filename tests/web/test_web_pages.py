@@ -73,6 +73,32 @@ async def test_sessions_page_lists_and_searches(dashboard_user, sessions_root: P
     await _wait_for(user, lambda: {r["path"]: r["processed"] for r in table.rows}.get(
         "car-a/before.h5") == "identify")
 
+    # what `fielddiag reprocess` recorded in its catalog shows for both sessions of the pair
+    from fielddiag.batch.store import CATALOG_NAME, BatchCatalog
+    from fielddiag.batch.task import PairOutcome, StepOutcome
+
+    BatchCatalog(sessions_root / CATALOG_NAME).record(PairOutcome(
+        str(sessions_root / "car-a" / "before.h5"), str(sessions_root / "car-a" / "after.h5"),
+        60.0, "test car", "front-left",
+        [StepOutcome("identify", "done", output=str(sessions_root / "car-a" /
+                                                    "before.identify.json"),
+                     summary={"sprung_mass_kg": 401.2, "stiffness_n_per_m": 25_300.0,
+                              "damping_ns_per_m": 1720.0}),
+         StepOutcome("diagnose", "failed", message="too little excitation")]))
+    user.find(marker="rescan").click()
+
+    def batch_cells() -> dict:
+        return {r["path"]: (r["batch"], r["batch_status"], r["batch_message"], r["processed"])
+                for r in table.rows}
+
+    await _wait_for(user, lambda: batch_cells().get("car-a/after.h5", ("",))[0] != "")
+    cells = batch_cells()
+    assert cells["car-a/after.h5"] == ("M 401 kg, K 25.3 kN/m, C 1720 Ns/m", "failed",
+                                       "diagnose: too little excitation", "identify")
+    assert cells["car-a/before.h5"][0] == cells["car-a/after.h5"][0]
+    user.find(marker="search").type("failed")
+    await _wait_for(user, lambda: len(table.rows) == 2)
+
 
 async def test_empty_root_says_how_to_get_sessions(tmp_path: Path, dashboard_user_factory) -> None:
     from fielddiag.web.app import DashboardConfig
