@@ -272,3 +272,47 @@ def test_catalog_is_plain_sqlite(fleet, first_run):
         n, failed = db.execute(
             "SELECT count(*), sum(status = 'failed') FROM pairs").fetchone()
     assert (n, failed) == (3, 1)
+
+
+def test_runs_on_an_existing_cluster_given_its_address(fleet, first_run, tmp_path, capsys):
+    """A real `dask scheduler` and `dask worker` in their own processes, as on a fleet's
+    machines; the batch connects to the scheduler's address."""
+    import shutil
+    import subprocess
+
+    shutil.copytree(fleet / "car-a", tmp_path / "car-a", ignore=shutil.ignore_patterns("*.json"))
+    sched_file = tmp_path / "scheduler.json"
+    env = {**os.environ, "DASK_DISTRIBUTED__LOGGING__DISTRIBUTED": "error"}
+    procs = [subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_scheduler",
+                               "--host", "127.0.0.1", "--port", "0", "--dashboard-address",
+                               ":0", "--scheduler-file", str(sched_file)], env=env,
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
+    try:
+        for _ in range(200):
+            if sched_file.exists() and sched_file.stat().st_size:
+                break
+            time.sleep(0.1)
+        address = json.loads(sched_file.read_text())["address"]
+        procs.append(subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_worker",
+                                       address, "--nthreads", "1", "--no-dashboard"], env=env,
+                                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+        from distributed import Client
+
+        with Client(address, timeout="30s") as c:
+            c.wait_for_workers(1, timeout=60)
+        rc = main(["reprocess", str(tmp_path), "--scheduler", address, "--steps", "identify"])
+        out, err = capsys.readouterr()
+        assert rc == 0, out + err
+        assert f"running on a cluster at {address} with 1 workers" in err
+        row = BatchCatalog(tmp_path / CATALOG_NAME).rows()[0]
+        assert row["status"] == "done" and row["diagnose_status"] is None
+        assert abs(row["identify_summary"]["sprung_mass_kg"] / CAR.body_mass_kg - 1) < 0.05
+        assert (tmp_path / "car-a" / "before.identify.json").is_file()
+    finally:
+        for p in reversed(procs):
+            p.terminate()
+        for p in procs:
+            try:
+                p.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                p.kill()

@@ -61,9 +61,29 @@ class BatchReport:
         return sum(o.status == "failed" for o in self.outcomes) + len(self.plan.pairing.unreadable)
 
 
-def _common_folder(paths: Sequence[Path]) -> Path:
-    folders = [str(p.parent) for p in paths]
-    return Path(os.path.commonpath(folders)) if folders else Path.cwd()
+def _input_folder(item: str | os.PathLike) -> Path:
+    """The folder an input names: itself, a file's folder, or a glob's fixed prefix."""
+    import glob
+
+    text = os.fspath(item)
+    if glob.has_magic(text):
+        fixed = []
+        for part in Path(text).parts:
+            if glob.has_magic(part):
+                break
+            fixed.append(part)
+        p = Path(*fixed) if fixed else Path.cwd()
+    else:
+        p = Path(text)
+    p = p.resolve()
+    return p if p.is_dir() else p.parent
+
+
+def _common_folder(inputs: Sequence[str | os.PathLike]) -> Path:
+    """The folder the batch is about (the catalog goes there): the common folder of the
+    inputs, so ``reprocess fleet/`` keeps its catalog in ``fleet/`` where the dashboard
+    serving ``fleet/`` finds it."""
+    return Path(os.path.commonpath([str(_input_folder(i)) for i in inputs]))
 
 
 def _load_summary(step: str, output: str) -> dict:
@@ -106,7 +126,7 @@ def plan(
         manifests = sorted({*manifests, Path(manifest).resolve()})
     if not sessions:
         raise FieldDiagError(f"no session files (.h5) found in {', '.join(map(str, inputs))}")
-    root = _common_folder(sessions)
+    root = _common_folder(inputs)
     catalog_file = Path(catalog_path) if catalog_path else root / CATALOG_NAME
     catalog = BatchCatalog(catalog_file)
     pairing = pair_sessions(read_headers(sessions), manifests, max_apart_h=max_apart_h)

@@ -58,6 +58,7 @@ def start_client(scheduler: str | None = None, workers: int | None = None):
     dask.config.set({"distributed.scheduler.allowed-failures": ALLOWED_WORKER_DEATHS})
     if scheduler:
         try:
+            _probe(scheduler)
             client = Client(scheduler, timeout="10s")
         except (OSError, TimeoutError, ValueError) as exc:
             raise FieldDiagError(
@@ -75,6 +76,20 @@ def start_client(scheduler: str | None = None, workers: int | None = None):
                            dashboard_address=None, silence_logs=logging.ERROR)
     client = Client(cluster)
     return client, ClusterInfo(cluster.scheduler_address, n, n, True)
+
+
+def _probe(address: str) -> None:
+    """Fail at once on a refused TCP connection (dask would keep retrying until its timeout)."""
+    import socket
+    from urllib.parse import urlsplit
+
+    parts = urlsplit(address if "://" in address else f"tcp://{address}")
+    if parts.scheme not in ("tcp", "tls") or not parts.hostname or not parts.port:
+        if parts.scheme in ("tcp", "tls"):
+            raise ValueError("give the address as tcp://HOST:PORT")
+        return  # other transports (inproc, ucx): let dask handle them
+    with socket.create_connection((parts.hostname, parts.port), timeout=5.0):
+        pass
 
 
 def _failed(job: PairJob, message: str) -> PairOutcome:

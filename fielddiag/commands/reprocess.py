@@ -50,6 +50,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+def _n(count: int, noun: str) -> str:
+    return f"{count} {noun}{'' if count == 1 else 's'}"
+
+
 def run(args: argparse.Namespace) -> int:
     from fielddiag.batch.report import Progress, format_table, short_path
     from fielddiag.batch.reprocess import plan, reprocess
@@ -64,9 +68,9 @@ def run(args: argparse.Namespace) -> int:
                  catalog_path=args.catalog, max_apart_h=args.max_apart_h)
     root = batch.root
     n_pairs = len(batch.pairing.pairs)
-    print(f"{n_pairs} pairs under {root}: {len(batch.jobs)} to run, "
+    print(f"{_n(n_pairs, 'pair')} under {root}: {len(batch.jobs)} to run, "
           f"{n_pairs - len(batch.jobs)} up to date; "
-          f"{len(batch.pairing.unpaired)} sessions not paired, "
+          f"{_n(len(batch.pairing.unpaired), 'session')} not paired, "
           f"{len(batch.pairing.unreadable)} unreadable")
     if args.dry_run:
         for job in batch.jobs:
