@@ -5,9 +5,12 @@ pairs of effects, an effect outside the library, linear cars including noisy/sho
 and bias-drifting ones, and sensor problems) is simulated from its seed and diagnosed with
 fielddiag.diagnose.engine.diagnose_drives. Printed per case: the verdict, the effects named
 (first = ranked first), parameter errors against the truth, the data warnings, the linear
-and augmented held-out NRMSE, and wall time. Then the scores: top-1 effect correct,
-false alarms on linear cases, worst parameter error, unexplained found, sensor problems
-flagged.
+and augmented held-out NRMSE, and wall time. For cases whose effects are all in the
+library, also the noise floor: the held-out NRMSE of the true model structure (the true
+effects, fitted like the candidates from the true values, engine.known_model_nrmse), and
+the ratio linear NRMSE / floor (how far the effect stands above the noise: 1.3-2 is a
+small effect). Then the scores: top-1 effect correct, false alarms on linear cases, worst
+parameter error, unexplained found, sensor problems flagged.
 
 Usage: python benchmarks/bench_diagnose.py [NAME ...]
 """
@@ -17,11 +20,38 @@ from __future__ import annotations
 import sys
 import time
 
-from fielddiag.diagnose.engine import Drive, diagnose_drives
-from fielddiag.scenarios import SCENARIOS, simulate_scenario
+from fielddiag.diagnose.engine import EFFECT_LIBRARY, Drive, diagnose_drives, known_model_nrmse
+from fielddiag.scenarios import SCENARIOS, Scenario, simulate_scenario
 
 
-def run(name: str) -> dict:
+def true_values(sc: Scenario) -> dict[str, float]:
+    """The scenario's true parameters by model key (start values of the floor fit)."""
+    car = sc.car
+    vals = {
+        "body_mass_kg": car.body_mass_kg,
+        "linear_spring.suspension_stiffness_n_per_m": car.suspension_stiffness_n_per_m,
+        "linear_damper.suspension_damping_ns_per_m": car.suspension_damping_ns_per_m,
+        "coupling_spring.coupling_stiffness_n_per_m": car.coupling_stiffness_n_per_m,
+    }
+    for eff, params in sc.effects:
+        vals.update({f"{eff}.{k}": v for k, v in params.items()})
+    return vals
+
+
+def noise_floor(sc: Scenario, drives: list[Drive]) -> float | None:
+    """Held-out NRMSE of the true model structure (None outside the library)."""
+    effects = [e for e, _ in sc.effects]
+    if not effects or any(e not in EFFECT_LIBRARY for e in effects):
+        return None
+    return known_model_nrmse(
+        drives,
+        effects,
+        initial=true_values(sc),
+        coupling=sc.car.coupling_stiffness_n_per_m != 0.0,
+    )
+
+
+def run(name: str, floor: bool = False) -> dict:
     sc = SCENARIOS[name]
     before, after = simulate_scenario(sc)
     drives = [
@@ -33,6 +63,7 @@ def run(name: str) -> dict:
     t0 = time.perf_counter()
     out = diagnose_drives(drives).to_dict()
     wall = time.perf_counter() - t0
+    nf = noise_floor(sc, drives) if floor else None
     named = [f["effect"] for f in out["findings"]]
     errors = []
     for eff, params in sc.effects:
@@ -48,6 +79,8 @@ def run(name: str) -> dict:
         "errors": errors,
         "warnings": [w["kind"] for w in out["warnings"]],
         "wall": wall,
+        "floor": nf,
+        "ratio": None if nf is None else out["baseline"]["nrmse_validation"] / nf,
     }
 
 
@@ -56,15 +89,16 @@ def main() -> None:
     print(__doc__)
     rows = []
     for name in names:
-        r = run(name)
+        r = run(name, floor=True)
         rows.append(r)
         out = r["out"]
         err = f"{100 * max(r['errors']):.1f} %" if r["errors"] else "-"
+        ratio = "" if r["ratio"] is None else f" floor {r['floor']:.3f} ratio {r['ratio']:.2f}"
         print(
             f"{name:<26} {out['verdict']:<16} named {','.join(r['named']) or '-':<40} "
             f"param err {err:>7}  warn {','.join(r['warnings']) or '-':<32} NRMSE "
             f"{out['baseline']['nrmse_validation']:.3f} -> "
-            f"{out['augmented']['nrmse_validation']:.3f}  {r['wall']:.0f} s",
+            f"{out['augmented']['nrmse_validation']:.3f}  {r['wall']:.0f} s{ratio}",
             flush=True,
         )
     effect_cases = [

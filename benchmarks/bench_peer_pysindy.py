@@ -29,7 +29,7 @@ Peer (pysindy 2.x STLSQ, set up as a competent user would):
    GeneralizedLibrary of CustomLibraries: constant, r, r^3, max(-r-g, 0) for g = 20, 25,
    ..., 80 mm (a bump-stop grid; gaps passed by fewer than 10 samples dropped: all-zero
    columns break column normalisation) on r; rdot, tanh(rdot / 0.01 m/s) (dry friction,
-   fielddiag's smoothing), rdot [rdot < 0] (compression damping) on rdot; x2 (coupling).
+   the simulator's smoothing), rdot [rdot < 0] (compression damping) on rdot; x2 (coupling).
    STLSQ on normalised columns (the threshold is then the smallest contribution a term may
    make, relative to the target's norm), swept over 13 thresholds from 3e-4 to 0.3, plus
    the linear model (the linear terms by least squares). Kept: the model with the fewest
@@ -87,7 +87,9 @@ GRAVITY_MPS2 = dsp.GRAVITY_MPS2
 BAND_HZ = (0.5, 30.0)
 ANALYSIS_RATE_HZ = 125.0
 HOLDOUT_FRACTION = 0.3
-SMOOTHING_VELOCITY_MPS = 0.01  # the same tanh smoothing as fielddiag's friction term
+# the simulator's tanh smoothing (fielddiag's friction term fits its own, effective one: a
+# sparse regression needs the column fixed)
+SMOOTHING_VELOCITY_MPS = 0.01
 GAPS_M = tuple(round(0.02 + 0.005 * i, 3) for i in range(13))  # 20 ... 80 mm
 MASS_RANGE_KG = (100.0, 3000.0)  # search range of the sprung mass
 # static sag of the loaded drive / the linear dM g / K: every effect of the library stiffens

@@ -131,9 +131,12 @@ def main() -> None:
         for workers in (1, 2):
             print(f"  running with {workers} worker(s)...", file=sys.stderr, flush=True)
             runs[workers] = r = timed_batch(folder, workers, steps)
+            load = os.getloadavg()[0]
             print(f"{workers} worker(s): {r['pairs']} pairs in {r['wall_s']:.1f} s "
                   f"(cluster start-up {r['startup_s']:.1f} s, then {r['work_s']:.1f} s = "
-                  f"{r['work_s'] / r['pairs']:.2f} s per pair); failed: {len(r['failed'])}")
+                  f"{r['work_s'] / r['pairs']:.2f} s per pair); failed: {len(r['failed'])}; "
+                  f"1-min load average at the end {load:.2f} (other work on the machine "
+                  "inflates it beyond the workers)")
             for msg in r["failed"][:3]:
                 print(f"   failed: {msg}")
         speedup = runs[1]["wall_s"] / runs[2]["wall_s"]

@@ -1,146 +1,98 @@
 """Mismatch diagnosis on before/after pairs with known, concealed physics.
 
 Each case comes from fielddiag.scenarios (the same catalogue as the benchmark and
-sample_data/concealed); the full sweep over every case is benchmarks/bench_diagnose.py.
+sample_data/concealed). The acceptance list: every effect of the library at three sizes or
+more, one of them small (the linear model's held-out NRMSE only 1.3-2x the noise floor,
+measured by benchmarks/bench_diagnose.py), both pairs of effects, an effect outside the
+library, linear cars (plain, noisy 200 Hz, short, bias drifting) and every sensor problem.
+All cases are diagnosed once, two at a time in worker processes, by a module fixture; the
+tests assert on the stored results against the scenarios' truth.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
+import multiprocessing
+import os
+from collections.abc import Iterator
+from concurrent.futures import Future, ProcessPoolExecutor
 
 import pytest
 
 from fielddiag.cli import main
-from fielddiag.diagnose.engine import (
-    BLOCKING_WARNINGS,
-    Drive,
-    _data_warnings,
-    _transmissibility_warnings,
-    diagnose_drives,
-)
-from fielddiag.scenarios import SCENARIOS, simulate_scenario, write_scenario
+from fielddiag.diagnose.engine import BLOCKING_WARNINGS
+from fielddiag.scenarios import SCENARIOS, diagnose_scenario, write_scenario
+
+try:  # optional: keeps this process's BLAS from oversubscribing the cores with the workers
+    from threadpoolctl import threadpool_limits
+except ImportError:  # pragma: no cover
+    threadpool_limits = None
+
+EFFECT_CASES = {
+    "coulomb_friction": ["friction_1", "friction_2", "friction_3", "small_friction"],
+    "cubic_stiffness": ["cubic_1", "cubic_2", "cubic_3", "small_cubic"],
+    "bump_stop": ["bump_stop_1", "bump_stop_2", "bump_stop_3", "small_bump_stop"],
+    "asymmetric_damping": ["asymmetric_1", "asymmetric_2", "asymmetric_3", "small_asymmetric"],
+}
+SINGLE = [name for names in EFFECT_CASES.values() for name in names]
+PAIRS = ["friction_and_asymmetric", "cubic_and_bump_stop"]
+OUTSIDE = ["quadratic_damping"]
+LINEAR = ["linear_plain", "linear_noisy_200hz", "linear_short", "linear_bias_drift"]
+SENSOR = ["sensor_gain_changed", "channel_time_offset", "clipping"]
+ALL_CASES = SINGLE + PAIRS + OUTSIDE + LINEAR + SENSOR
+
+#: Parameter tolerance: one effect alone / each of two effects acting together.
+REL_SINGLE = 0.20
+REL_PAIR = 0.25
+#: Held-out NRMSE of the augmented model at most this fraction of the linear model's
+#: (where the effect is not small).
+NRMSE_RATIO = 0.7
 
 
-def _diagnose(name: str) -> dict:
-    before, after = simulate_scenario(SCENARIOS[name])
-    drives = [
-        Drive(
-            label,
-            name,
-            d.sample_rate_hz,
-            0.0,
-            d.wheel_accel_mps2,
-            d.body_accel_mps2,
-            d.added_mass_kg,
-        )
-        for label, d in (("before", before), ("after", after))
-    ]
-    return diagnose_drives(drives).to_dict()
+_BLAS_THREADS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
 
-def _true_params(name: str, effect: str) -> dict[str, float]:
-    return dict(next(p for n, p in SCENARIOS[name].effects if n == effect))
+@pytest.fixture(scope="module")
+def pending() -> Iterator[dict[str, Future]]:
+    """Every case submitted for diagnosis, in two worker processes with single-threaded
+    BLAS (the fits' tall least-squares problems gain nothing from BLAS threads on shared
+    cores, and lose a lot to oversubscription)."""
+    saved = {k: os.environ.get(k) for k in _BLAS_THREADS}
+    pool = ProcessPoolExecutor(max_workers=2, mp_context=multiprocessing.get_context("spawn"))
+    try:
+        os.environ.update({k: "1" for k in _BLAS_THREADS})  # the workers start on submit
+        # sensor cases (no effect fits) last, so that the two workers finish together
+        order = sorted(ALL_CASES, key=lambda n: n in SENSOR)
+        futures = {name: pool.submit(diagnose_scenario, name) for name in order}
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+    try:
+        yield futures
+    finally:
+        pool.shutdown(cancel_futures=True)
 
 
-@pytest.mark.parametrize("name", ["friction_2", "bump_stop_1"])
-def test_concealed_effect_is_named_with_its_size(name):
-    out = _diagnose(name)
-    sc = SCENARIOS[name]
-    effect = sc.expected_effects[0]
-    # concealed: the linear model alone already tracks the body well by eye
-    assert out["baseline"]["nrmse_validation"] < 0.25
-    assert out["verdict"] == "missing_physics"
-    assert out["findings"][0]["effect"] == effect
-    for key, true in _true_params(name, effect).items():
-        assert out["findings"][0]["parameters"][key] == pytest.approx(true, rel=0.2), key
-    assert out["augmented"]["nrmse_validation"] < 0.7 * out["baseline"]["nrmse_validation"]
-    assert out["warnings"] == []
-    json.dumps(out)
+@pytest.fixture(scope="module")
+def results(pending) -> dict[str, dict]:
+    """The diagnosis of every case (waits for the workers)."""
+    return {name: fut.result() for name, fut in pending.items()}
 
 
-def test_linear_car_is_adequate():
-    out = _diagnose("linear_plain")
-    assert out["verdict"] == "adequate" and out["findings"] == []
-    assert out["augmented"] == out["baseline"]
-    lin = out["linear_model"]
-    assert lin["sprung_mass_kg"] == pytest.approx(380.0, rel=0.03)
-    assert lin["suspension_stiffness_n_per_m"] == pytest.approx(24e3, rel=0.03)
-
-
-def test_effect_outside_the_library_is_unexplained():
-    out = _diagnose("quadratic_damping")
-    assert out["verdict"] == "missing_physics"
-    assert [f["effect"] for f in out["findings"]][-1] == "unexplained"
-    where = out["findings"][-1]["where"]
-    assert where["region"] is not None and len(where["region"]["rdot_mps"]) == 2
-
-
-def test_channel_time_offset_is_a_data_warning_not_physics():
-    out = _diagnose("channel_time_offset")
-    kinds = [w["kind"] for w in out["warnings"]]
-    assert "channel_time_offset" in kinds
-    assert out["verdict"] == "adequate" and out["findings"] == []
-
-
-def _warnings_of(name: str) -> list:
-    before, after = simulate_scenario(SCENARIOS[name])
-    drives = [
-        Drive(
-            label,
-            name,
-            d.sample_rate_hz,
-            0.0,
-            d.wheel_accel_mps2,
-            d.body_accel_mps2,
-            d.added_mass_kg,
-        )
-        for label, d in (("before", before), ("after", after))
-    ]
-    return _data_warnings(drives) + _transmissibility_warnings(drives)
-
-
-@pytest.mark.parametrize(
-    "name, kind, value",
-    [
-        ("sensor_gain_changed", "sensor_gain_changed", 0.08),
-        ("channel_time_offset", "channel_time_offset", 0.004),
-        ("clipping", "clipping", None),
-        ("linear_bias_drift", "bias_drift", None),
-    ],
-)
-def test_each_sensor_problem_is_a_data_warning(name, kind, value):
-    warnings = _warnings_of(name)
-    found = [w for w in warnings if w.kind == kind]
-    assert found, [w.kind for w in warnings]
-    if value is not None:  # the size, within a factor of 2
-        assert 0.5 * value < abs(found[0].value) < 2.0 * value
-    # problems that corrupt the comparison withhold physics findings; a drift does not
-    assert (kind in BLOCKING_WARNINGS) == (kind != "bias_drift")
-
-
-def test_linear_drives_raise_no_data_warning():
-    assert _warnings_of("linear_plain") == []
-
-
-def test_cli_pair_with_plots(tmp_path, capsys):
+def test_cli_pair_with_plots(pending, tmp_path, capsys):
+    # runs in this process while the workers diagnose the catalogue
+    assert pending
     before, after, _ = write_scenario(SCENARIOS["asymmetric_2"], tmp_path)
     out_json = tmp_path / "d.json"
-    assert (
-        main(
-            [
-                "diagnose",
-                str(before),
-                str(after),
-                "--added-mass",
-                "60",
-                "--json",
-                str(out_json),
-                "--plots",
-                str(tmp_path / "plots"),
-            ]
-        )
-        == 0
-    )
+    args = ["diagnose", str(before), str(after), "--added-mass", "60", "--json",
+            str(out_json), "--plots", str(tmp_path / "plots")]
+    limit = threadpool_limits(1) if threadpool_limits else contextlib.nullcontext()
+    with limit:
+        assert main(args) == 0
     out = json.loads(out_json.read_text())
     assert out["verdict"] == "missing_physics"
     f = out["findings"][0]
@@ -156,3 +108,136 @@ def test_cli_pair_with_plots(tmp_path, capsys):
     ]
     text = capsys.readouterr().out
     assert "asymmetric" in text and "MISSING PHYSICS" in text
+
+
+def _true_params(name: str, effect: str) -> dict[str, float]:
+    return dict(next(p for n, p in SCENARIOS[name].effects if n == effect))
+
+
+def _finding(out: dict, effect: str) -> dict:
+    return next(f for f in out["findings"] if f["effect"] == effect)
+
+
+def test_catalogue_covers_the_acceptance_list():
+    for effect, names in EFFECT_CASES.items():
+        assert len(names) >= 3
+        assert all(SCENARIOS[n].expected_effects == (effect,) for n in names)
+        assert any(SCENARIOS[n].small for n in names), effect
+    assert {e for n in PAIRS for e in SCENARIOS[n].expected_effects} == set(EFFECT_CASES)
+    assert len(LINEAR) >= 3 and all(not SCENARIOS[n].effects for n in LINEAR)
+    # varied drives: roads, rates, noise, added masses, speeds
+    cases = [SCENARIOS[n] for n in SINGLE + LINEAR]
+    assert len({c.road_class for c in cases}) >= 2
+    assert len({c.rate_hz for c in cases}) >= 2
+    assert len({c.snr_db for c in cases}) >= 3
+    assert len({c.added_mass_kg for c in cases}) >= 3
+    assert len({c.speed_range_mps for c in cases}) >= 3
+
+
+@pytest.mark.parametrize("name", SINGLE)
+def test_single_effect_is_ranked_first_with_its_size(results, name):
+    sc = SCENARIOS[name]
+    out = results[name]["out"]
+    effect = sc.expected_effects[0]
+    assert out["verdict"] == "missing_physics"
+    assert out["findings"][0]["effect"] == effect, [f["effect"] for f in out["findings"]]
+    for key, true in _true_params(name, effect).items():
+        got = out["findings"][0]["parameters"][key]
+        assert got == pytest.approx(true, rel=REL_SINGLE), key
+    base = out["baseline"]["nrmse_validation"]
+    aug = out["augmented"]["nrmse_validation"]
+    if sc.small:
+        # near the noise floor the augmented model cannot gain much; it reaches the floor
+        # (the true model's held-out NRMSE, benchmarks/bench_diagnose.py), so the linear
+        # model's error over it is the effect's size in units of the noise: 1.3-2
+        assert 1.25 < base / aug < 2.1
+    else:
+        assert aug < NRMSE_RATIO * base
+    assert out["warnings"] == []
+    json.dumps(out)
+
+
+@pytest.mark.parametrize("name", ["friction_1", "friction_2", "friction_3",
+                                  "friction_and_asymmetric"])
+def test_dry_friction_force_is_not_biased_by_the_band(results, name):
+    # With the smoothing velocity held at the simulator's 10 mm/s these came out 7.5-11 %
+    # low: the vibration above the band dithers the friction (engine fits an effective
+    # smoothing velocity instead, 15-35 mm/s on class B-C roads)
+    f = _finding(results[name]["out"], "coulomb_friction")
+    true = _true_params(name, "coulomb_friction")["friction_force_n"]
+    assert f["parameters"]["friction_force_n"] == pytest.approx(true, rel=0.06)
+    assert 0.01 < f["parameters"]["smoothing_velocity_mps"] < 0.06
+
+
+@pytest.mark.parametrize("name", PAIRS)
+def test_two_effects_are_both_named_with_their_sizes(results, name):
+    sc = SCENARIOS[name]
+    out = results[name]["out"]
+    assert out["verdict"] == "missing_physics"
+    named = [f["effect"] for f in out["findings"]]
+    assert set(named[:2]) == set(sc.expected_effects), named
+    for effect in sc.expected_effects:
+        f = _finding(out, effect)
+        for key, true in _true_params(name, effect).items():
+            assert f["parameters"][key] == pytest.approx(true, rel=REL_PAIR), (effect, key)
+    assert out["augmented"]["nrmse_validation"] < NRMSE_RATIO * out["baseline"][
+        "nrmse_validation"]
+
+
+def test_effect_outside_the_library_is_unexplained_where_it_acts(results):
+    out = results["quadratic_damping"]["out"]
+    assert out["verdict"] == "missing_physics"
+    last = out["findings"][-1]
+    assert last["effect"] == "unexplained"
+    region = last["where"]["region"]
+    assert region is not None
+    # velocity-squared damping departs from a linear damper at the fast strokes: the
+    # located region reaches beyond the middle half of the rdot range on the map
+    edges = out["departure_map"]["rdot_edges_mps"]
+    lo, hi = region["rdot_mps"]
+    quarter = 0.25 * (edges[-1] - edges[0])
+    assert lo <= edges[0] + quarter or hi >= edges[-1] - quarter, (region, edges[0], edges[-1])
+
+
+@pytest.mark.parametrize("name", LINEAR)
+def test_linear_car_is_adequate(results, name):
+    sc = SCENARIOS[name]
+    out = results[name]["out"]
+    assert out["verdict"] == "adequate" and out["findings"] == []
+    assert out["augmented"] == out["baseline"]
+    lin = out["linear_model"]
+    car = sc.car
+    # noise on the wheel channel (the model's input) biases the linear fit low (errors in
+    # variables): 9-14 % at 25 dB SNR, a few per cent at 35 dB
+    rel = 0.05 if sc.snr_db >= 35.0 else 0.20
+    assert lin["sprung_mass_kg"] == pytest.approx(car.body_mass_kg, rel=rel)
+    assert lin["suspension_stiffness_n_per_m"] == pytest.approx(
+        car.suspension_stiffness_n_per_m, rel=rel)
+    assert lin["suspension_damping_ns_per_m"] == pytest.approx(
+        car.suspension_damping_ns_per_m, rel=2 * rel)
+    kinds = [w["kind"] for w in results[name]["warnings"]]
+    assert set(kinds) == set(sc.expected_warnings), kinds
+
+
+@pytest.mark.parametrize(
+    "name, kind, value",
+    [
+        ("sensor_gain_changed", "sensor_gain_changed", 0.08),
+        ("channel_time_offset", "channel_time_offset", 0.004),
+        ("clipping", "clipping", None),
+        ("linear_bias_drift", "bias_drift", None),
+    ],
+)
+def test_each_sensor_problem_is_a_data_warning_not_physics(results, name, kind, value):
+    warnings = results[name]["warnings"]
+    out = results[name]["out"]
+    found = [w for w in warnings if w["kind"] == kind]
+    assert found, [w["kind"] for w in warnings]
+    if value is not None:  # the size, within a factor of 2
+        assert 0.5 * value < abs(found[0]["value"]) < 2.0 * value
+    if kind == "clipping":
+        assert {w["channel"] for w in found} == {"wheel accelerometer"}
+    # no physics blamed: problems that corrupt the comparison withhold findings; a drift
+    # is below the band and leaves the diagnosis adequate
+    assert (kind in BLOCKING_WARNINGS) == (kind != "bias_drift")
+    assert out["verdict"] == "adequate" and out["findings"] == []

@@ -19,6 +19,7 @@ from pathlib import Path
 import can
 import numpy as np
 import pytest
+from _daq_helpers import missing_seqs, noise_signals
 
 from drivers import open_source
 from drivers.virtual import VirtualDAQ, VirtualECU, simulated_accelerations, to_counts
@@ -27,7 +28,6 @@ from fielddiag.cli import main as cli_main
 from fielddiag.errors import DeviceError, SessionError
 from fielddiag.recorder import Recorder, _Ring, format_status, record_virtual_drive
 from fielddiag.session import SessionReader
-from _daq_helpers import missing_seqs, noise_signals
 
 REPO = Path(__file__).resolve().parents[1]
 

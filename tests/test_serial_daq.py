@@ -12,6 +12,7 @@ import time
 
 import numpy as np
 import pytest
+from _daq_helpers import collect, expected_samples, missing_seqs, noise_signals
 
 from drivers import open_source, parse_source_url, source_class
 from drivers.base import ClockSync, SessionClock
@@ -19,7 +20,6 @@ from drivers.can_vehicle import CanLogSource
 from drivers.serial_daq import SerialDAQSource, SerialTextSource, list_ports
 from drivers.virtual import PtyLink, VirtualDAQ
 from fielddiag.errors import DeviceError
-from _daq_helpers import collect, expected_samples, missing_seqs, noise_signals
 
 
 def _open(daq: VirtualDAQ, query: str = "") -> SerialDAQSource:

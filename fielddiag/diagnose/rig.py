@@ -238,6 +238,12 @@ def _at_bound(
         if key.split(".")[0] not in effects:
             continue
         v, s = z[2 + i], std[2 + i]
+        if spec.name == "smoothing_velocity_mps":
+            # a loosely determined shape parameter: only its upper end (friction turned
+            # into a linear damper) is telling
+            if v >= 0.98 * spec.upper:
+                pinned.append(key)
+            continue
         for b in (spec.lower, spec.upper):
             if np.isfinite(b) and abs(v - b) <= max(2.0 * s, 1e-9 * max(abs(b), 1.0)):
                 pinned.append(key)

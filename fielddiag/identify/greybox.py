@@ -38,10 +38,15 @@ lasts longer): honest for coloured residuals, where ``s^2 (J^T J)^-1`` is optimi
 the factor reported as the variance inflation.
 
 Limits: the model is exact for linear terms; effect terms are evaluated on band-limited
-motion, which biases them (dry friction ~5 % low with a 0.5 Hz lower band edge on a class C
-road: the missing slow relative velocity shifts its zero crossings). Fixed-step RK4 at the
-sample rate is exact to ~1e-7 for the linear model; stiff effects (friction with a small
-smoothing velocity) want ``substeps`` 2-4.
+motion. What the band removes matters most for dry friction: the relative velocity above
+the band's top (7-16 mm/s rms on class B-C roads with a 30 Hz top; below a 0.5 Hz bottom
+only 0.5-2 mm/s) dithers the true friction across its zero crossings, so on the
+band-limited velocity it switches more gently. With the smoothing velocity held at its
+true 10 mm/s the fitted force comes out 7-11 % low; fitted (as
+:class:`~fielddiag.identify.terms.CoulombFriction` does) it settles at an effective
+15-30 mm/s and the force within a few per cent. Fixed-step RK4 at the sample rate is exact
+to ~1e-7 for the linear model; stiff effects (friction with a small smoothing velocity)
+want ``substeps`` 2-4.
 
 Validation: the fitted model is run on data not used in the fit (another segment or
 another drive; only the two initial-state nuisances are refitted) and the NRMSE
