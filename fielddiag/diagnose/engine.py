@@ -29,6 +29,7 @@ import numpy as np
 from scipy import optimize
 
 from fielddiag import dsp
+from fielddiag.blas import single_threaded_blas
 from fielddiag.diagnose import data_checks
 from fielddiag.diagnose.locate import (
     DepartureMap,
@@ -819,6 +820,7 @@ def known_model_nrmse(
     return fit.candidate.nrmse_validation
 
 
+@single_threaded_blas
 def diagnose_drives(
     drives: Sequence[Drive],
     *,

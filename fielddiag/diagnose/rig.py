@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import optimize, signal
 
+from fielddiag.blas import single_threaded_blas
 from fielddiag.diagnose.locate import departure_map
 from fielddiag.diagnose.selection import (
     CandidateFit,
@@ -418,6 +419,7 @@ def _unexplained_structure(
     }
 
 
+@single_threaded_blas
 def diagnose_rig(
     data: RigData,
     *,

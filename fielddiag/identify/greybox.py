@@ -67,6 +67,7 @@ import numpy as np
 from numba import njit
 from scipy import linalg, optimize, signal
 
+from fielddiag.blas import single_threaded_blas
 from fielddiag.errors import FieldDiagError, InsufficientDataError
 from fielddiag.identify.greybox_results import GreyBoxResult, ParameterEstimate, SessionFit
 from fielddiag.identify.terms import ForceModel, linear_model, model_force
@@ -1073,6 +1074,7 @@ def _to_unit(model: ForceModel, values: Mapping[str, float], absolute: bool,
     return out
 
 
+@single_threaded_blas
 def fit_greybox(
     data: GreyBoxData | Sequence[GreyBoxData],
     model: ForceModel | None = None,

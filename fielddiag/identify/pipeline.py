@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from fielddiag.blas import single_threaded_blas
 from fielddiag.dsp import (
     BlockCrossSpectra,
     CrossSpectra,
@@ -270,6 +271,7 @@ def _noise_result(n: SessionNoise, fs: float) -> NoiseResult:
         notes=list(n.notes))
 
 
+@single_threaded_blas
 def identify_recordings(
     before: Recording,
     after: Recording,
