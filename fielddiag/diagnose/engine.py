@@ -55,7 +55,7 @@ from fielddiag.identify.greybox import (
     fit_greybox,
     validation_runs,
 )
-from fielddiag.identify.terms import TERMS, ForceModel, make_term
+from fielddiag.identify.terms import TERMS, ForceModel, make_term, split_shape
 
 #: The effects the diagnosis knows (names are part of the JSON interface).
 EFFECT_LIBRARY = ("coulomb_friction", "cubic_stiffness", "bump_stop", "asymmetric_damping")
@@ -404,12 +404,14 @@ class Diagnosis:
         if self.mode == "single":  # per unit sprung mass
             params = {_per_kg(k): v for k, v in params.items()}
             stds = {_per_kg(k): v for k, v in stds.items()}
+        params, shape = split_shape(params)
         base = self.baseline.candidate
         explained = 1.0 - c.mse_validation / base.mse_validation
         return {
             "effect": effect,
             "confidence": confidence(self.comparison, explained / max(explained, 0.25)),
             "parameters": params,
+            "shape": shape,
             "std": stds,
             "where": self._where(),
             "explanation": explain(effect, params, base.values, c.values, self.mode),

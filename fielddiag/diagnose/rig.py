@@ -31,7 +31,7 @@ from fielddiag.diagnose.selection import (
     select_model,
 )
 from fielddiag.errors import InsufficientDataError
-from fielddiag.identify.terms import ForceModel, make_term
+from fielddiag.identify.terms import ForceModel, make_term, split_shape
 
 #: Effect terms tried by default, in the diagnosis library's names.
 RIG_EFFECTS = ("coulomb_friction", "cubic_stiffness", "bump_stop", "asymmetric_damping")
@@ -293,16 +293,17 @@ class RigDiagnosis:
         if chosen is not base:
             explained = 1.0 - chosen.mse_validation / base.mse_validation
             for eff in chosen.effects:
-                params = {
+                params, shape = split_shape({
                     k.split(".", 1)[1]: v
                     for k, v in chosen.values.items()
                     if k.startswith(eff + ".")
-                }
+                })
                 findings.append(
                     {
                         "effect": eff,
                         "confidence": confidence(sel.comparison, explained / max(explained, 0.3)),
                         "parameters": params,
+                        "shape": shape,
                         "std": {
                             k.split(".", 1)[1]: v
                             for k, v in chosen.std.items()

@@ -90,6 +90,10 @@ class ParamSpec:
         Short name for people (``stiffness``, ``damping``).
     advice : str
         How to drive so that this parameter becomes observable.
+    shape : bool
+        True for a parameter of the fitted *form* rather than of the physics a technician
+        acts on (friction's smoothing velocity): a diagnosis reports it apart, under
+        ``shape``, and keeps ``parameters`` to the effect's physical quantities.
     """
 
     name: str
@@ -100,6 +104,7 @@ class ParamSpec:
     scales_with_force: bool
     label: str
     advice: str
+    shape: bool = False
 
     def per_unit_mass_name(self) -> str:
         """Name of the per-unit-mass value (``..._per_kg`` for force-scaled parameters)."""
@@ -208,8 +213,8 @@ class Term:
         return ForceModel([self]).force(r, rdot, x2, values)
 
 
-def _spec(name, unit, lower, upper, typical, scaled, label, advice) -> ParamSpec:
-    return ParamSpec(name, unit, lower, upper, typical, scaled, label, advice)
+def _spec(name, unit, lower, upper, typical, scaled, label, advice, shape=False) -> ParamSpec:
+    return ParamSpec(name, unit, lower, upper, typical, scaled, label, advice, shape)
 
 
 _ADVICE_STIFFNESS = "drive over long undulations or speed humps at moderate speed (body bounce)"
@@ -303,7 +308,8 @@ class CoulombFriction(Term):
               "drive slowly over small ripples (small, slow suspension strokes)"),
         _spec("smoothing_velocity_mps", "m/s", 1e-3, 0.2, 0.01, False,
               "friction smoothing velocity",
-              "drive slowly over small ripples (many slow reversals of the suspension)"),
+              "drive slowly over small ripples (many slow reversals of the suspension)",
+              shape=True),
     )
     # linear in the force once the smoothing velocity is fixed (what the equation-error
     # start values need)
@@ -858,3 +864,11 @@ def model_from_sim(params: Any, effects: Sequence[Any] = (), *, coupling: bool |
             values[f"{cls.name}.{p.name}"] = ed[p.name]
     model = ForceModel(terms)
     return model, {k: v for k, v in values.items() if k in model.param_keys}
+
+
+def split_shape(params: dict[str, float]) -> tuple[dict[str, float], dict[str, float]]:
+    """(physical parameters, shape parameters) of an effect's fitted values, by name (see
+    :attr:`ParamSpec.shape`); per-kg names of shape parameters are the same names."""
+    shape_names = {p.name for cls in TERMS.values() for p in cls.params if p.shape}
+    return ({k: v for k, v in params.items() if k not in shape_names},
+            {k: v for k, v in params.items() if k in shape_names})
