@@ -41,7 +41,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "relative to the CSV)")
     p.add_argument("--catalog", metavar="FILE.sqlite",
                    help="catalog file (default: fielddiag-catalog.sqlite in the common folder "
-                   "of the sessions)")
+                   "of the inputs, where `fielddiag serve --root` on that folder finds it)")
     p.add_argument("--max-apart-h", type=float, default=24.0, metavar="H",
                    help="pair drives by metadata only when recorded at most H hours apart "
                    "(default 24)")
