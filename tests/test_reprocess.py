@@ -55,6 +55,13 @@ def test_pairs_by_vehicle_corner_and_nearest_time():
     assert "no drive without added mass" in why["c75"]
     assert why["a0_morning"] == "no drive with added mass to pair it with"
     assert [path.stem for path, _ in p.unreadable] == ["broken"]
+    # without recording times only a single candidate can be chosen
+    undated = [_h("u0", "van", "fl", 0, ""), _h("u1", "van", "fl", 0, ""),
+               _h("u50", "van", "fl", 50, ""), _h("w0", "bus", "fl", 0, ""),
+               _h("w50", "bus", "fl", 50, "")]
+    p2 = pair_sessions(undated)
+    assert [(x.before.stem, x.after.stem) for x in p2.pairs] == [("w0", "w50")]
+    assert "no recording times" in dict((q.stem, r) for q, r in p2.unpaired)["u50"]
     # a wider window pairs the week-apart drives
     wide = pair_sessions(headers, max_apart_h=24 * 8)
     assert ("b0", "b60_next_week") in {(x.before.stem, x.after.stem) for x in wide.pairs}

@@ -202,6 +202,12 @@ def read_manifest(path: str | os.PathLike) -> list[tuple[Path, Path, float | Non
         raise FieldDiagError(f"manifest {path} is not a readable CSV: {exc}") from exc
 
 
+def _hours_apart(a: SessionHeader, b: SessionHeader) -> float:
+    """Hours between two recordings (inf when either time is unknown)."""
+    ta, tb = a.created_unix_s, b.created_unix_s
+    return abs(ta - tb) / 3600.0 if ta is not None and tb is not None else float("inf")
+
+
 def pair_sessions(
     headers: Sequence[SessionHeader],
     manifests: Sequence[str | os.PathLike] = (),
@@ -248,27 +254,26 @@ def pair_sessions(
         if not h.error and h.path not in used:
             groups.setdefault((h.vehicle.strip().lower(), h.corner.strip().lower()),
                               []).append(h)
-    max_apart_s = max_apart_h * 3600.0
     for _group, members in sorted(groups.items()):
         befores = [h for h in members if h.added_mass_kg == 0]
         afters = [h for h in members if h.added_mass_kg > 0]
         paired_befores: set[Path] = set()
         for a in afters:
-            best, best_dt = None, float("inf")
-            ta = a.created_unix_s
-            for b in befores:
-                tb = b.created_unix_s
-                dt = abs(ta - tb) if ta is not None and tb is not None else float("inf")
-                if dt < best_dt or (best is None and len(befores) == 1):
-                    best, best_dt = b, dt
-            if best is None:
+            if not befores:
                 result.unpaired.append((a.path, f"no drive without added mass for vehicle "
                                         f"{a.vehicle or '?'!r}, corner {a.corner or '?'!r}"))
-            elif best_dt > max_apart_s and not (best_dt == float("inf") and len(befores) == 1):
+                continue
+            best = min(befores, key=lambda b, a=a: _hours_apart(a, b))
+            apart_h = _hours_apart(a, best)
+            if apart_h == float("inf") and len(befores) > 1:
+                result.unpaired.append((a.path, "several drives without added mass and no "
+                                        "recording times to choose between them; pair them "
+                                        "in a manifest"))
+            elif apart_h != float("inf") and apart_h > max_apart_h:
                 result.unpaired.append((a.path, f"the closest drive without added mass "
                                         f"({best.path.name}) is more than {max_apart_h:g} h "
                                         "apart; pair them in a manifest if they belong together"))
-            else:
+            else:  # within the window, or the only candidate when times are unknown
                 paired_befores.add(best.path)
                 result.pairs.append(Pair(best.path, a.path, a.added_mass_kg - best.added_mass_kg,
                                          a.vehicle, a.corner))
