@@ -323,3 +323,12 @@ def test_runs_on_an_existing_cluster_given_its_address(fleet, first_run, tmp_pat
                 p.wait(timeout=20)
             except subprocess.TimeoutExpired:
                 p.kill()
+
+
+def test_dry_run_lists_the_plan_and_writes_nothing(tmp_path, capsys):
+    _tiny_session(tmp_path / "b.h5", "v", 0)
+    _tiny_session(tmp_path / "a.h5", "v", 50)
+    assert main(["reprocess", str(tmp_path), "--dry-run"]) == 0
+    out = capsys.readouterr().out
+    assert "would run identify+diagnose: b.h5 + a.h5 (+50 kg)" in out
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.h5", "b.h5"]

@@ -29,7 +29,6 @@ from fielddiag.batch.task import (
     PairOutcome,
     StepOutcome,
     make_job,
-    stored_fingerprint,
 )
 from fielddiag.errors import FieldDiagError
 
@@ -86,12 +85,14 @@ def _common_folder(inputs: Sequence[str | os.PathLike]) -> Path:
     return Path(os.path.commonpath([str(_input_folder(i)) for i in inputs]))
 
 
-def _load_summary(step: str, output: str) -> dict:
+def _stored_result(step: str, output: str) -> tuple[str | None, dict]:
+    """(fingerprint, catalog summary) of a result file (None, {} if unreadable)."""
     try:
         with open(output, encoding="utf-8") as fh:
-            return SUMMARISERS[step](json.load(fh))
-    except (OSError, ValueError):
-        return {}
+            data = json.load(fh)
+        return str(data["provenance"]["fingerprint"]), SUMMARISERS[step](data)
+    except (OSError, ValueError, KeyError, TypeError):
+        return None, {}
 
 
 def plan(
@@ -127,24 +128,29 @@ def plan(
     if not sessions:
         raise FieldDiagError(f"no session files (.h5) found in {', '.join(map(str, inputs))}")
     root = _common_folder(inputs)
-    catalog_file = Path(catalog_path) if catalog_path else root / CATALOG_NAME
-    catalog = BatchCatalog(catalog_file)
+    catalog_file = (Path(catalog_path) if catalog_path else root / CATALOG_NAME).resolve()
+    # read only: a dry run leaves no catalog behind
+    known = (BatchCatalog(catalog_file, readonly=True).done_steps()
+             if catalog_file.is_file() else {})
     pairing = pair_sessions(read_headers(sessions), manifests, max_apart_h=max_apart_h)
-    result = BatchPlan(root, catalog.path, pairing)
+    result = BatchPlan(root, catalog_file, pairing)
     shared = Counter(p.before for p in pairing.pairs)
     for pair in pairing.pairs:
         job = make_job(pair, steps, before_shared=shared[pair.before] > 1)
         todo, done = [], []
         for step in job.steps:
             out, fp = job.outputs[step], job.fingerprints[step]
-            fresh = (not force and Path(out).is_file()
-                     and (catalog.fingerprint(job.before, job.after, step) == fp
-                          or stored_fingerprint(out) == fp))
-            if fresh:
-                done.append(StepOutcome(step, "skipped", message="up to date", output=out,
-                                        summary=_load_summary(step, out), fingerprint=fp))
-            else:
+            if force or not Path(out).is_file():
                 todo.append(step)
+                continue
+            stored_fp, summary = known.get((job.before, job.after, step), (None, None))
+            if stored_fp != fp:  # not in the catalog (or lost): the result file decides
+                stored_fp, summary = _stored_result(step, out)
+            if stored_fp != fp:
+                todo.append(step)
+                continue
+            done.append(StepOutcome(step, "skipped", message="up to date", output=out,
+                                    summary=summary, fingerprint=fp))
         if todo:
             result.jobs.append(replace(job, steps=tuple(todo),
                                        outputs={s: job.outputs[s] for s in todo},

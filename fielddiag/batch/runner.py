@@ -24,7 +24,8 @@ from fielddiag.errors import FieldDiagError
 
 __all__ = ["ClusterInfo", "run_jobs", "start_client"]
 
-#: a pair whose worker died this many times more than once is failed (dask's default is 3)
+#: how many worker deaths a pair may be involved in before it is failed (dask's default
+#: is 3): one retry on another worker
 ALLOWED_WORKER_DEATHS = 1
 
 
@@ -55,7 +56,6 @@ def start_client(scheduler: str | None = None, workers: int | None = None):
     import dask
     from distributed import Client, LocalCluster
 
-    dask.config.set({"distributed.scheduler.allowed-failures": ALLOWED_WORKER_DEATHS})
     if scheduler:
         try:
             _probe(scheduler)
@@ -72,8 +72,10 @@ def start_client(scheduler: str | None = None, workers: int | None = None):
     n = workers if workers is not None else (os.cpu_count() or 1)
     if n < 1:
         raise FieldDiagError(f"--workers must be at least 1 (got {n})")
-    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                           dashboard_address=None, silence_logs=logging.ERROR)
+    # read when the (in-process) scheduler starts; a remote scheduler keeps its own setting
+    with dask.config.set({"distributed.scheduler.allowed-failures": ALLOWED_WORKER_DEATHS}):
+        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                               dashboard_address=None, silence_logs=logging.ERROR)
     client = Client(cluster)
     return client, ClusterInfo(cluster.scheduler_address, n, n, True)
 

@@ -9,7 +9,8 @@ may be writing.
 Table ``pairs`` (one row per before/after pair): ``before``, ``after`` (relative paths),
 ``vehicle``, ``corner``, ``added_mass_kg``, ``status`` (done, failed), ``message`` (why
 it failed), ``processed_utc``, ``wall_s``, ``worker``, and for each step
-(``identify``, ``diagnose``): ``<step>_status``, ``<step>_json`` (result file, relative),
+(``identify``, ``diagnose``): ``<step>_status``, ``<step>_message``, ``<step>_json``
+(result file, relative),
 ``<step>_fingerprint``, ``<step>_summary`` (JSON: mass, stiffness, damping with standard
 deviations; verdict, findings, warnings), ``<step>_detail`` (traceback of an unexpected
 error).
@@ -34,7 +35,7 @@ SCHEMA_VERSION = 1
 
 __all__ = ["CATALOG_NAME", "BatchCatalog", "find_catalog"]
 
-_STEP_COLUMNS = ("status", "json", "fingerprint", "summary", "detail")
+_STEP_COLUMNS = ("status", "message", "json", "fingerprint", "summary", "detail")
 _COLUMNS = (
     "before", "after", "vehicle", "corner", "added_mass_kg", "status", "message",
     "processed_utc", "wall_s", "worker",
@@ -102,45 +103,43 @@ class BatchCatalog:
         return (self.folder / stored).resolve()
 
     def record(self, outcome: PairOutcome) -> None:
-        """Store a pair's outcome. Steps not in it, or skipped as up to date, keep what the
-        row already held for them; the row's status sums up all its steps."""
+        """Store a pair's outcome; steps not in it keep what the row held. The row's
+        ``status`` and ``message`` sum up all its steps."""
         key = (self.relative(outcome.before), self.relative(outcome.after))
         with closing(self._connect()) as db, db:
             old = db.execute("SELECT * FROM pairs WHERE before=? AND after=?", key).fetchone()
             row: dict[str, Any] = dict(old) if old is not None else {}
             row.update(before=key[0], after=key[1], vehicle=outcome.vehicle,
                        corner=outcome.corner, added_mass_kg=outcome.added_mass_kg)
-            ran = False
             for st in outcome.steps:
-                if st.status == "skipped" and row.get(f"{st.step}_status") == "done":
-                    continue
-                ran = ran or st.status != "skipped"
-                row[f"{st.step}_status"] = "done" if st.status == "skipped" else st.status
-                row[f"{st.step}_json"] = self.relative(st.output) if st.output else ""
-                row[f"{st.step}_fingerprint"] = st.fingerprint
-                row[f"{st.step}_summary"] = json.dumps(st.summary)
-                row[f"{st.step}_detail"] = st.detail
-            if ran or old is None:
+                row.update({
+                    f"{st.step}_status": "done" if st.status == "skipped" else st.status,
+                    f"{st.step}_message": st.message if st.status == "failed" else "",
+                    f"{st.step}_json": self.relative(st.output) if st.output else "",
+                    f"{st.step}_fingerprint": st.fingerprint,
+                    f"{st.step}_summary": json.dumps(st.summary),
+                    f"{st.step}_detail": st.detail,
+                })
+            if old is None or outcome.status != "skipped":
                 row.update(processed_utc=datetime.now(UTC).isoformat(timespec="seconds"),
                            wall_s=outcome.wall_s, worker=outcome.worker)
-            states = [row.get(f"{s}_status") for s in STEPS if row.get(f"{s}_status")]
-            row["status"] = "failed" if "failed" in states else "done"
-            row["message"] = "; ".join(
-                f"{st.step}: {st.message}" for st in outcome.steps if st.status == "failed"
-            ) if outcome.status == "failed" else ("" if row["status"] == "done"
-                                                  else row.get("message", ""))
+            failed = [s for s in STEPS if row.get(f"{s}_status") == "failed"]
+            row["status"] = "failed" if failed else "done"
+            row["message"] = "; ".join(f"{s}: {row[f'{s}_message']}" for s in failed)
             names = [c for c in _COLUMNS if c in row]
             db.execute(f"INSERT OR REPLACE INTO pairs ({', '.join(names)}) "
                        f"VALUES ({', '.join('?' for _ in names)})", [row[n] for n in names])
 
-    def fingerprint(self, before: str | os.PathLike, after: str | os.PathLike,
-                    step: str) -> str | None:
-        """The fingerprint stored for a pair's step when it succeeded (else None)."""
-        with closing(self._connect()) as db:
-            r = db.execute(f"SELECT {step}_status, {step}_fingerprint FROM pairs "
-                           "WHERE before=? AND after=?",
-                           (self.relative(before), self.relative(after))).fetchone()
-        return r[1] if r is not None and r[0] == "done" and r[1] else None
+    def done_steps(self) -> dict[tuple[str, str, str], tuple[str, dict[str, Any]]]:
+        """(before, after, step) as absolute paths -> (fingerprint, summary) of every step
+        that succeeded: what a plan needs to skip up-to-date work, in one read."""
+        out = {}
+        for r in self.rows():
+            b, a = str(self.absolute(r["before"])), str(self.absolute(r["after"]))
+            for s in STEPS:
+                if r.get(f"{s}_status") == "done" and r.get(f"{s}_fingerprint"):
+                    out[(b, a, s)] = (r[f"{s}_fingerprint"], r[f"{s}_summary"])
+        return out
 
     def rows(self) -> list[dict[str, Any]]:
         """Every pair row as a dict (summaries decoded), sorted by before and after."""

@@ -38,7 +38,6 @@ __all__ = [
     "make_job",
     "pair_result_path",
     "process_pair",
-    "stored_fingerprint",
 ]
 
 
@@ -61,16 +60,6 @@ def fingerprint(pair: Pair, step: str) -> str:
         st = os.stat(p)
         parts.append([Path(p).name, st.st_size, st.st_mtime_ns])
     return hashlib.sha1(json.dumps(parts).encode()).hexdigest()[:16]
-
-
-def stored_fingerprint(result_file: str | os.PathLike) -> str | None:
-    """The fingerprint in a stored result's ``provenance`` (None if absent or unreadable)."""
-    try:
-        with open(result_file, encoding="utf-8") as fh:
-            data = json.load(fh)
-        return str(data["provenance"]["fingerprint"])
-    except (OSError, ValueError, KeyError, TypeError):
-        return None
 
 
 @dataclass(frozen=True)
