@@ -63,18 +63,19 @@ def timed_batch(folder: Path, workers: int, steps: list[str]) -> dict:
     batch = plan([folder], steps=steps, force=True)
     marks: dict[str, float] = {"t0": time.perf_counter()}
     failed = []
+    finished = 0
 
     def started(info: ClusterInfo) -> None:
         marks["up"] = time.perf_counter()
 
     def done(outcome: PairOutcome) -> None:
+        nonlocal finished
         marks["last"] = time.perf_counter()
+        finished += 1
         if outcome.status == "failed":
             failed.append(outcome.message)
-        n = len(marks) - 2
-        if n % 10 == 0:
-            print(f"    {n}/{len(batch.jobs)} pairs", file=sys.stderr, flush=True)
-        marks[f"d{n}"] = marks["last"]
+        if finished % 10 == 0:
+            print(f"    {finished}/{len(batch.jobs)} pairs", file=sys.stderr, flush=True)
 
     reprocess(batch, workers=workers, on_done=done, on_start=started)
     return {
