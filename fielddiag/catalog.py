@@ -251,10 +251,7 @@ class Catalog:
         path = find_catalog(self.root)
         if path is None:
             return {}
-        stamp = tuple(
-            (q.stat().st_mtime_ns, q.stat().st_size) if q.exists() else (0, 0)
-            for q in (path, path.with_name(path.name + "-wal"))
-        )
+        stamp = tuple(_file_stamp(q) for q in (path, path.with_name(path.name + "-wal")))
         with self._lock:
             if self._batch_cache is not None and self._batch_cache[0] == (path, stamp):
                 return self._batch_cache[1]
@@ -311,6 +308,15 @@ def _results_for(
             if kind and "." not in kind and kind not in out:
                 out[kind] = (folder / rn).relative_to(root).as_posix()
     return dict(sorted(out.items()))
+
+
+def _file_stamp(path: Path) -> tuple[int, int]:
+    """(modification time ns, size) of a file; (0, 0) when it does not exist."""
+    try:
+        st = path.stat()
+    except OSError:
+        return (0, 0)
+    return (st.st_mtime_ns, st.st_size)
 
 
 def _with_batch(summary: SessionSummary, batch: dict[str, Any]) -> SessionSummary:
