@@ -50,6 +50,12 @@ _BATCH_SLOT = r"""
   <span v-else class="text-grey-6">-</span>
 </q-td>
 """
+_CHANNELS_SLOT = r"""
+<q-td :props="props">
+  <div :title="props.value" style="max-width: 22rem; overflow: hidden;
+       text-overflow: ellipsis; white-space: nowrap">{{ props.value }}</div>
+</q-td>
+"""
 _STATUS_SLOT = r"""
 <q-td :props="props">
   <q-badge :color="props.value === 'ok' ? 'grey-5' : (props.value === 'unreadable'
@@ -122,6 +128,8 @@ def render(state) -> None:
     table.add_slot("body-cell-processed", _PROCESSED_SLOT)
     table.add_slot("body-cell-status", _STATUS_SLOT)
     table.add_slot("body-cell-batch", _BATCH_SLOT)
+    table.add_slot("body-cell-channels", _CHANNELS_SLOT)  # long lists must not push the
+    # batch result off screen: cut with an ellipsis, whole list on hover
     table.on("rowClick", lambda e: ui.navigate.to(session_link(e.args[1]["path"])))
     empty = ui.label("").classes("text-gray-600").mark("sessions-empty")
 
