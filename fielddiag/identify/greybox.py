@@ -338,7 +338,7 @@ def default_band_hz(sample_rate_hz: float, n_samples: int | None = None) -> tupl
 _EMPTY = np.zeros(1)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _hermite_basis(nsub):  # pragma: no cover - compiled
     """Cubic Hermite weights of x(tau) and x'(tau)*h at tau = q / (2 nsub), q = 0..2 nsub."""
     m = 2 * nsub + 1

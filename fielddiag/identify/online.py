@@ -64,7 +64,7 @@ _N_S = 14
 _F_RP, _F_RV, _F_BP, _F_BY = 0, 1, 2, 3
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _svf_step(svf, row, u, ad, bd):  # pragma: no cover - compiled
     s = svf[row, 2] + u
     p = ad[0, 0] * svf[row, 0] + ad[0, 1] * svf[row, 1] + bd[0] * s

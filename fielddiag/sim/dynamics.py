@@ -48,7 +48,7 @@ def _phys_array(params: QuarterCarParams, added_mass_kg: float) -> np.ndarray:
     )
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _suspension_force(r, rd, z, phys, eff):  # pragma: no cover - compiled
     """Force of the suspension on the body and dz/dt of the hysteretic state."""
     f = -phys[_P_K2] * r
@@ -73,7 +73,7 @@ def _suspension_force(r, rd, z, phys, eff):  # pragma: no cover - compiled
     return f, dz
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _force_array(r, rd, z, phys, eff):  # pragma: no cover - compiled
     out = np.empty(r.shape[0])
     for i in range(r.shape[0]):
@@ -81,7 +81,7 @@ def _force_array(r, rd, z, phys, eff):  # pragma: no cover - compiled
     return out
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _road_at(t, j, knot_t, knot_v, knot_d, knot_a, road_h, inv_dx):  # pragma: no cover
     """Road height and rate at time t; j is the current speed-knot index (t never decreases).
 
@@ -111,7 +111,7 @@ def _road_at(t, j, knot_t, knot_v, knot_d, knot_a, road_h, inv_dx):  # pragma: n
     return u, du * inv_dx * v, j
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _rhs(x1, v1, x2, v2, z, u, ud, phys, eff):  # pragma: no cover - compiled
     fs, dz = _suspension_force(x2 - x1, v2 - v1, z, phys, eff)
     a1 = (phys[_P_K1] * (u - x1) + phys[_P_C1] * (ud - v1) - fs) / phys[_P_M1]
@@ -119,7 +119,7 @@ def _rhs(x1, v1, x2, v2, z, u, ud, phys, eff):  # pragma: no cover - compiled
     return a1, a2, dz, fs
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _integrate(
     state0, n_int, dt, k_dec, phys, eff, knot_t, knot_v, knot_d, knot_a, road_h, inv_dx
 ):  # pragma: no cover - compiled
