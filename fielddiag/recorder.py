@@ -21,14 +21,16 @@ demo uses it.
 from __future__ import annotations
 
 import os
+import shutil
 import sys
+import textwrap
 import threading
 import time
 import uuid
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 import numpy as np
 
@@ -143,6 +145,7 @@ class Recorder:
         self.block_listeners: list[Callable[[Block], None]] = []
         self.online: Any = None  # OnlineEstimator, see attach_online_estimator
         self.online_error = ""
+        self.online_ready = threading.Event()  # set once the estimator is attached or failed
         self.writer: SessionWriter | None = None
         self.clock: SessionClock | None = None
         self.error: FieldDiagError | None = None
@@ -505,6 +508,7 @@ class Recorder:
             "last_error": str(self.error) if self.error else (errors[0] if errors else ""),
             "sources": src_status,
             **({"online": self.online.status()} if self.online is not None else {}),
+            **({"online_error": self.online_error} if self.online_error else {}),
         }
 
     def attach_online_estimator(self, **kw: Any) -> Any:
@@ -514,12 +518,14 @@ class Recorder:
         (compiled before it is attached, so the source thread never waits for numba), or
         None when the DAQ has no wheel and body channels. Its status (estimates, information
         per parameter, advice for the technician) appears under ``"online"`` in
-        :meth:`status`.
+        :meth:`status`; :attr:`online_ready` is set once it is attached (or has failed,
+        ``status()["online_error"]`` then says why).
         """
         from fielddiag.identify.online import OnlineEstimator
 
         roles = {c.role for c in self.channels}
         if self.daq is None or not {"wheel", "body"} <= roles:
+            self.online_ready.set()
             return None
         est = OnlineEstimator(self.daq.sample_rate_hz, **kw)
         listener = est.block_listener(self.channels)
@@ -532,9 +538,11 @@ class Recorder:
             except Exception as exc:  # an estimator failure must not touch the recording
                 self.listener_errors += 1
                 self.online_error = str(exc)
+                self.online_ready.set()
                 return
             self.block_listeners.append(listener)
             self.online = est
+            self.online_ready.set()
 
         threading.Thread(target=warm_then_attach, name="online-warm-up", daemon=True).start()
         return est
@@ -565,11 +573,122 @@ def format_status(st: dict[str, Any]) -> str:
             parts.append(txt)
     parts.append(f"buf {100 * st.get('buffer_fill', 0.0):3.0f}%")
     parts.append(f"{st.get('file_size_bytes', 0) / 1e6:.1f} MB")
-    if not st.get("connected", True):
+    if not st.get("connected", True) and st.get("state") == "recording":
         parts.append("DISCONNECTED")
     if st.get("last_error"):
         parts.append(f"[{st['last_error'][:60]}]")
     return " | ".join(parts)
+
+
+def _number(x: float) -> str:
+    return f"{x:.3g}" if abs(x) < 1e4 else f"{x:.0f}"
+
+
+def _rel_pct(x: float | None) -> str:
+    if x is None:
+        return "?"
+    return f"{x:.0f}" if x >= 10 else (f"{x:.1f}" if x >= 1 else f"{x:.2f}")
+
+
+def format_online_status(online: Mapping[str, Any]) -> str:
+    """The on-line estimate in one compact line: value ± relative std and information.
+
+    Parameters
+    ----------
+    online : dict
+        ``Recorder.status()["online"]`` (:meth:`~fielddiag.identify.online.OnlineEstimator.status`).
+
+    Returns
+    -------
+    str
+        E.g. ``on-line (12.0 s): stiffness 63.2 N/m/kg ±1.2 % 8.1 bit | damping 4.74
+        N s/m/kg ±5.3 % 3.2 bit``; absolute values when the body mass is known.
+    """
+    parts = []
+    for p in online.get("parameters", []):
+        if p.get("absolute_value") is not None:
+            unit = p["unit"][: -len("/kg")] if p["unit"].endswith("/kg") else p["unit"]
+            value = p["absolute_value"]
+        else:
+            unit, value = p["unit"], p["value"]
+        shown = "?" if value is None else _number(value)
+        parts.append(f"{p['label']} {shown} {unit} ±{_rel_pct(p.get('rel_std_pct'))} % "
+                     f"{p['information_bits']:.1f} bit")
+    return f"on-line ({online.get('duration_s', 0.0):.1f} s): " + " | ".join(parts)
+
+
+def status_lines(st: Mapping[str, Any]) -> list[str]:
+    """The live status as lines: recorder counters, then the on-line estimate and its advice.
+
+    Nothing is cut: the advice for the technician is a line of its own, whole.
+    """
+    lines = [format_status(st)]
+    online = st.get("online")
+    if online:
+        lines.append(format_online_status(online))
+        lines.append("advice: " + online.get("advice", ""))
+    elif st.get("online_error"):
+        lines.append("on-line estimate unavailable: " + st["online_error"])
+    return lines
+
+
+class StatusPrinter:
+    """Show :meth:`Recorder.status` on a console, the on-line estimate included.
+
+    On a terminal the status lines are redrawn in place, wrapped to the terminal width
+    (never cut). Otherwise (a log file, a pipe) each update is one full line appended.
+
+    Parameters
+    ----------
+    stream : text stream or None
+        Default ``sys.stderr``.
+    terminal : bool or None
+        Redraw in place; default: whether ``stream`` is a terminal.
+    width : int or None
+        Terminal columns; default: the terminal's size.
+    """
+
+    def __init__(self, stream: TextIO | None = None, *, terminal: bool | None = None,
+                 width: int | None = None) -> None:
+        self.stream = stream or sys.stderr
+        if terminal is None:
+            isatty = getattr(self.stream, "isatty", None)
+            terminal = bool(isatty()) if isatty is not None else False
+        self.terminal = terminal
+        self.width = width
+        self._rows_shown = 0  # terminal rows of the last redraw
+
+    def _rows(self, lines: list[str]) -> list[str]:
+        width = self.width or shutil.get_terminal_size((120, 24)).columns
+        room = max(20, width - 1)  # a full last column would make the terminal wrap itself
+        rows: list[str] = []
+        for line in lines:
+            if len(line) <= room:
+                rows.append(line)
+            else:
+                rows.extend(textwrap.wrap(line, room, subsequent_indent="    ",
+                                          break_on_hyphens=False))
+        return rows
+
+    def show(self, st: Mapping[str, Any]) -> None:
+        """Print one status (:meth:`Recorder.status`)."""
+        lines = status_lines(st)
+        if not self.terminal:
+            self.stream.write(" | ".join(lines) + "\n")
+        else:
+            rows = self._rows(lines)
+            up = f"\x1b[{self._rows_shown - 1}A" if self._rows_shown > 1 else ""
+            # back to the first row of the last redraw, clear to the end of the screen
+            self.stream.write("\r" + up + "\x1b[J" + "\n".join(rows))
+            self._rows_shown = len(rows)
+        self.stream.flush()
+
+    def finish(self) -> None:
+        """End the live display: what follows is printed below it."""
+        if self.terminal and self._rows_shown:
+            self.stream.write("\n")
+            self.stream.flush()
+        self._rows_shown = 0
 
 
 # ------------------------------------------------------------------ virtual drives
@@ -593,6 +712,7 @@ def record_virtual_drive(
     include_recipe: bool = True,
     overwrite: bool = False,
     faults: dict[str, Any] | None = None,
+    online: bool | Mapping[str, Any] = False,
 ) -> Path:
     """Record a simulated drive through the virtual DAQ (pty) and the virtual ECU.
 
@@ -633,6 +753,11 @@ def record_virtual_drive(
     faults : dict or None
         Fault injection passed to VirtualDAQ (``corrupt_rate``, ``garbage_every_s``,
         ``disconnect_at_s``, ``disconnect_for_s``, ``stall_at_s``...).
+    online : bool or mapping
+        Estimate stiffness and damping on-line while recording
+        (:meth:`Recorder.attach_online_estimator`; a mapping gives its keyword arguments).
+        The estimator is compiled before the drive starts, so it sees the whole drive; its
+        status is under ``"online"`` in what ``progress`` receives.
 
     Returns
     -------
@@ -674,6 +799,11 @@ def record_virtual_drive(
         notes=notes,
         extra=extra,
     )
+    online_kw = dict(online) if isinstance(online, Mapping) else {}
+    if online:
+        from fielddiag.identify.online import OnlineEstimator
+
+        OnlineEstimator(rate_hz, **online_kw).warm_up()  # compile now, not during the drive
     daq.start()
     rec = None
     try:
@@ -687,6 +817,9 @@ def record_virtual_drive(
         )
         rec = Recorder(path, [daq_src, can_src], metadata=meta, overwrite=overwrite)
         rec.start()
+        if online:
+            rec.attach_online_estimator(**online_kw)
+            rec.online_ready.wait(10.0)  # compiled already: attached at once
         ecu.time_fn = rec.clock.now  # speed of the drive at the session time it is sent
         ecu.start()
         next_progress = 0.0
@@ -708,9 +841,3 @@ def record_virtual_drive(
         daq.stop()
         ecu_bus.shutdown()
     return Path(path)
-
-
-def _print_status_line(st: dict[str, Any], stream=None) -> None:  # pragma: no cover - UI
-    stream = stream or sys.stderr
-    stream.write("\r" + format_status(st)[:150].ljust(150))
-    stream.flush()

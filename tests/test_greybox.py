@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import json
 
@@ -229,3 +230,98 @@ def test_cli_fit_two_sessions(tmp_path, capsys) -> None:
     assert abs(k["value"] - 24e3 / 380) < 4 * k["std"] + 0.002 * 24e3 / 380
     assert main(["fit", str(b), "--terms", "no_such_term"]) == 1
     assert main(["fit", str(tmp_path / "missing.h5")]) == 1
+
+
+def _check_correlation(res: GreyBoxResult) -> np.ndarray:
+    """A valid correlation matrix over the fitted parameters; returns it."""
+    corr = res.correlation_matrix()
+    assert res.correlation_names == [p.name for p in res.parameters if not p.fixed]
+    assert corr.shape == (len(res.correlation_names),) * 2
+    np.testing.assert_allclose(corr, corr.T, atol=1e-12)
+    np.testing.assert_allclose(np.diag(corr), 1.0, atol=1e-12)
+    assert np.all(np.abs(corr) <= 1.0 + 1e-12)
+    assert np.all(np.linalg.eigvalsh(corr) > -1e-10)  # positive semi-definite
+    for p in res.parameters:
+        assert p.std > 0 and p.rel_std_pct == pytest.approx(100 * p.std / abs(p.value), rel=1e-12)
+    return corr
+
+
+def test_correlation_matrix_and_relative_std_follow_the_physics() -> None:
+    """Absolute fit: the data fix the ratios K2/M2 and C2/M2 (body frequency and damping
+    ratio) far better than the mass, so K2 and C2 move with M2 (correlation near +1).
+    Per unit mass with a coupling spring: K2 and K3 both hold the body, the data fix
+    mostly their sum, so their estimates are negatively correlated."""
+    before, after = simulate_pair(CAR, added_mass_kg=80.0, seed=31, duration_s=30.0,
+                                  sensor=SensorModel(noise_std_mps2=0.05))
+    data = [GreyBoxData.from_drive(d) for d in (before, after)]
+    absolute = fit_greybox(data, linear_model(coupling=True))
+    corr = _check_correlation(absolute)
+    names = absolute.correlation_names
+    i_k, i_c, i_m = (names.index(n) for n in ("suspension_stiffness_n_per_m",
+                                              "suspension_damping_ns_per_m", "body_mass_kg"))
+    assert corr[i_k, i_m] > 0.9 and corr[i_c, i_m] > 0.9, corr
+    # mass-free ratios are much better known than the absolute values
+    per_kg = fit_greybox(data[0], linear_model(coupling=True))
+    corr = _check_correlation(per_kg)
+    names = per_kg.correlation_names
+    r_k2_k3 = corr[names.index("suspension_stiffness_n_per_m_per_kg"),
+                   names.index("coupling_stiffness_n_per_m_per_kg")]
+    assert r_k2_k3 < -0.3, corr
+    assert per_kg.parameter("suspension_stiffness_n_per_m").rel_std_pct < (
+        absolute.parameter("suspension_stiffness_n_per_m").rel_std_pct)
+
+
+@pytest.fixture(scope="module")
+def cli_sessions(tmp_path_factory) -> dict:
+    """Three 30 s sessions of one car: A and B without added mass (two drives), C with
+    80 kg on the body but its session saying 0 kg (the mass given on the command line)."""
+    folder = tmp_path_factory.mktemp("fit_cli")
+    sensor = SensorModel(noise_std_mps2=0.05)
+    before, after = simulate_pair(QuarterCarParams(), added_mass_kg=80.0, seed=41,
+                                  duration_s=30.0, sensor=sensor)
+    other = simulate(QuarterCarParams(), duration_s=30.0, road_class="C", seed=42,
+                     sensor=sensor)
+    return {
+        "A": drive_to_session(before, folder / "A.h5"),
+        "B": drive_to_session(other, folder / "B.h5"),
+        "C": drive_to_session(dataclasses.replace(after, added_mass_kg=0.0), folder / "C.h5"),
+    }
+
+
+def test_cli_fit_validates_on_another_drive(cli_sessions, tmp_path, capsys) -> None:
+    a, b = str(cli_sessions["A"]), str(cli_sessions["B"])
+    out = tmp_path / "fit.json"
+    assert main(["fit", a, "--validate", b, "--json", str(out)]) == 0
+    text = capsys.readouterr().out
+    res = GreyBoxResult.from_dict(json.loads(out.read_text()))
+    fit, val = res.fit_sessions(), res.validation_sessions()
+    assert len(fit) == 1 and [s.name for s in val][-1].endswith("B.h5")
+    assert len(val) == 2  # the held-out last quarter of A, and drive B
+    assert fit[0].duration_s == pytest.approx(0.75 * 30.0, abs=0.1)
+    assert val[1].duration_s == pytest.approx(30.0, abs=0.1)
+    for s in fit + val:
+        assert 0.0 < s.nrmse < 0.5
+        assert f"NRMSE {s.nrmse:.4f}" in text
+    # the model found on A explains drive B as well as A itself (same car, same noise)
+    assert val[1].nrmse == pytest.approx(fit[0].nrmse, rel=0.3)
+    lines = [ln for ln in text.splitlines() if "B.h5" in ln]
+    assert len(lines) == 1 and lines[0].strip().startswith("validation")
+
+
+def test_cli_fit_added_mass_from_the_command_line(cli_sessions, tmp_path, capsys) -> None:
+    a, c = str(cli_sessions["A"]), str(cli_sessions["C"])
+    # the sessions both say 0 kg: one mass, so values per unit mass only
+    assert main(["fit", a, c, "--holdout", "0", "--json", "-"]) == 0
+    assert json.loads(capsys.readouterr().out)["mode"] == "per_unit_mass"
+    out = tmp_path / "fit.json"
+    assert main(["fit", a, c, "--added-mass", "80", "--json", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "absolute" in text
+    res = GreyBoxResult.from_dict(json.loads(out.read_text()))
+    assert res.mode == "absolute"
+    assert [s.added_mass_kg for s in res.fit_sessions()] == [0.0, 80.0]
+    for name, truth in (("suspension_stiffness_n_per_m", 24e3),
+                        ("suspension_damping_ns_per_m", 1800.0), ("body_mass_kg", 380.0)):
+        p = res.parameter(name)
+        assert abs(p.value - truth) < 4 * p.std, (name, p.value, p.std)
+    _check_correlation(res)

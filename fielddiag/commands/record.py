@@ -5,7 +5,10 @@
         --signal vehicle_speed=SPEED.SPEED -o drive.h5 \\
         --added-mass 0 --vehicle "RAV4 2018" --corner front-left
 
-A status line shows rates, frames lost, CRC errors, buffer fill and elapsed time. Ctrl-C
+A status line shows rates, frames lost, CRC errors, buffer fill and elapsed time; with a
+wheel and a body channel, two more lines show the on-line estimate (value ± relative
+standard deviation and information in bits per parameter) and the advice for the driver,
+whole. On a terminal the lines are redrawn every 0.5 s; in a log, one line every 5 s. Ctrl-C
 (or SIGTERM, or --duration) stops cleanly. The file is flushed every 0.5 s, can be read
 while it grows, and a killed recorder loses at most the last second. If the disk fills
 up, the recording stops with a message and everything written before is kept.
@@ -125,7 +128,7 @@ def build_sources(args: argparse.Namespace) -> list:
 
 def run(args: argparse.Namespace) -> int:
     from fielddiag.channels import SessionMetadata
-    from fielddiag.recorder import Recorder, format_status
+    from fielddiag.recorder import Recorder, StatusPrinter, format_online_status
 
     sources = build_sources(args)
     meta = SessionMetadata(
@@ -151,6 +154,7 @@ def run(args: argparse.Namespace) -> int:
         file=sys.stderr,
         flush=True,
     )
+    printer = StatusPrinter(sys.stderr, terminal=tty)
     next_status = time.monotonic() + interval
     try:
         while rec.running:
@@ -158,15 +162,7 @@ def run(args: argparse.Namespace) -> int:
                 break
             time.sleep(0.1)
             if not args.quiet and time.monotonic() >= next_status:
-                st = rec.status()
-                line = format_status(st)
-                if "online" in st:
-                    line += " | " + st["online"].get("advice", "")
-                if tty:
-                    sys.stderr.write("\r" + line[:160].ljust(160))
-                else:
-                    sys.stderr.write(line + "\n")
-                sys.stderr.flush()
+                printer.show(rec.status())
                 next_status += interval
     except KeyboardInterrupt:
         pass
@@ -176,12 +172,10 @@ def run(args: argparse.Namespace) -> int:
             final = rec.stop()
         finally:
             signal.signal(signal.SIGINT, signal.default_int_handler)
-            if tty and not args.quiet:
-                sys.stderr.write("\n")
-    if rec.online is not None:
-        from fielddiag.identify.online import format_status as format_online
-
-        print("on-line estimate: " + format_online(rec.online.status()), file=sys.stderr)
+            printer.finish()
+    if "online" in final:
+        print(format_online_status(final["online"]) + "\nadvice: " + final["online"]["advice"],
+              file=sys.stderr)
     print(
         f"stopped after {final['elapsed_s']:.1f} s: {final['samples']} samples, "
         f"{final['frames_received']} frames, {final['frames_lost']} lost, "
