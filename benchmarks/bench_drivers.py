@@ -9,9 +9,13 @@
    device-to-session time mapping). Goal: >= 2 M samples/s on one core (a sample = one
    channel value), over 100x an 8-channel 2 kHz DAQ (16 k samples/s).
 2. Recording: `fielddiag virtual-daq --rate 2000 --channels 8` in its own process streams
-   over a pseudo-terminal; this process records it with fielddiag.recorder.Recorder into
-   an HDF5 session for --duration seconds. Reports frames lost (goal 0) and this
-   process's CPU time / wall time (goal < 20 % of one core), read from os.times().
+   over a pseudo-terminal, recorded for --duration seconds into an HDF5 session, twice:
+   (a) in this process with fielddiag.recorder.Recorder (no on-line estimator), CPU
+   time / wall time from os.times(); (b) by the real command a technician runs,
+   `fielddiag record --daq serial://PTY -o S.h5 --duration D --quiet` with its default
+   options (on-line estimator on), in its own process, CPU from /proc/<pid>/stat
+   (all its threads), frames lost from `fielddiag info --json`. Goal for both: 0 frames
+   lost and < 20 % of one core.
 3. CAN: the real 60 s RAV4 log (98,800 frames) with its DBC: (a) python-can LogReader
    parse + raw frame conversion + decoding SPEED and the four wheel speeds, end to end;
    (b) the recorder's per-batch work alone (frame conversion + decoding) on frames
@@ -22,7 +26,9 @@
 from __future__ import annotations
 
 import argparse
+import json
 import os
+import resource
 import subprocess
 import sys
 import tempfile
@@ -105,12 +111,8 @@ def _proc_cpu_s(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def bench_recording(duration_s: float) -> None:
-    from drivers import open_source
-    from fielddiag.recorder import Recorder
-    from fielddiag.session import SessionReader
-
-    print(f"2. recording 8 ch x 2 kHz over a pseudo-terminal for {duration_s:g} s")
+def _start_virtual_daq() -> tuple[subprocess.Popen, str]:
+    """`fielddiag virtual-daq` at 2 kHz x 8 channels in its own process, and its port."""
     daq = subprocess.Popen(
         [
             sys.executable,
@@ -129,8 +131,23 @@ def bench_recording(duration_s: float) -> None:
         text=True,
         cwd=REPO,
     )
+    return daq, daq.stdout.readline().strip()
+
+
+def _stop(proc: subprocess.Popen) -> None:
+    proc.terminate()
+    proc.wait(10)
+
+
+def bench_recording(duration_s: float) -> None:
+    from drivers import open_source
+    from fielddiag.recorder import Recorder
+    from fielddiag.session import SessionReader
+
+    print(f"2. recording 8 ch x 2 kHz over a pseudo-terminal for {duration_s:g} s")
+    print("   (a) fielddiag.recorder.Recorder in this process, no on-line estimator")
+    daq, port = _start_virtual_daq()
     try:
-        port = daq.stdout.readline().strip()
         with tempfile.TemporaryDirectory() as tmp:
             path = Path(tmp) / "bench.h5"
             src = open_source(f"serial://{port}")
@@ -146,21 +163,123 @@ def bench_recording(duration_s: float) -> None:
             seqs = src.seq_log
             missing = (seqs[-1] - seqs[0] + 1 - len(seqs)) if seqs else -1
     finally:
-        daq.terminate()
-        daq.wait(10)
+        _stop(daq)
     cpu = (c1.user + c1.system - c0.user - c0.system) / (w1 - w0)
     print(
-        f"   samples stored {n} ({n / duration_s:.0f} per s per channel), file {size / 1e6:.1f} MB"
+        f"       samples stored {n} ({n / duration_s:.0f} per s per channel), "
+        f"file {size / 1e6:.1f} MB"
     )
     print(
-        f"   frames received {final['frames_received']}, frames lost {final['frames_lost']} "
+        f"       frames received {final['frames_received']}, frames lost {final['frames_lost']} "
         f"(missing sequence numbers {missing}), CRC errors {final['crc_errors']}, "
         f"gaps {final['gaps']}"
     )
     print(
-        f"   recorder CPU {100 * cpu:.1f} % of one core (goal < 20 %); virtual DAQ process "
+        f"       recorder CPU {100 * cpu:.1f} % of one core (goal < 20 %); virtual DAQ process "
         f"{100 * (d1 - d0) / (w1 - w0):.1f} %"
     )
+
+
+def _wait_for_samples(path: Path, proc: subprocess.Popen, timeout_s: float = 60.0) -> None:
+    """Return once the session written by ``proc`` holds samples."""
+    from fielddiag.errors import SessionError
+    from fielddiag.session import SessionReader
+
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            raise RuntimeError(f"fielddiag record exited early: {proc.stderr.read()}")
+        if path.exists():
+            try:
+                with SessionReader(path) as s:
+                    if s.n_samples > 0:
+                        return
+            except SessionError:
+                pass
+        time.sleep(0.05)
+    raise RuntimeError("fielddiag record wrote no samples")
+
+
+def _cpu_while_running(pid: int, window_s: float) -> list[tuple[float, float]]:
+    """(wall, CPU) seconds of process ``pid`` sampled every 0.5 s for ``window_s``."""
+    marks = [(time.monotonic(), _proc_cpu_s(pid))]
+    end = marks[0][0] + window_s
+    while time.monotonic() < end:
+        time.sleep(min(0.5, max(0.0, end - time.monotonic())))
+        marks.append((time.monotonic(), _proc_cpu_s(pid)))
+    return marks
+
+
+def bench_record_command(duration_s: float) -> None:
+    print(
+        f"   (b) `fielddiag record --daq serial://PTY -o S.h5 --duration {duration_s:g} --quiet` "
+        "in its own process, default options (on-line estimator on)"
+    )
+    daq, port = _start_virtual_daq()
+    try:
+        with tempfile.TemporaryDirectory() as tmp:
+            path = Path(tmp) / "cli.h5"
+            children0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+            w_launch = time.monotonic()
+            rec = subprocess.Popen(
+                [
+                    sys.executable,
+                    "-m",
+                    "fielddiag.cli",
+                    "record",
+                    "--daq",
+                    f"serial://{port}",
+                    "-o",
+                    str(path),
+                    "--duration",
+                    f"{duration_s:g}",
+                    "--quiet",
+                ],
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.PIPE,
+                text=True,
+                cwd=REPO,
+            )
+            _wait_for_samples(path, rec)
+            # while it records: from its first samples to 0.5 s before its --duration ends
+            marks = _cpu_while_running(rec.pid, max(0.5, duration_s - 0.5))
+            _, err = rec.communicate(timeout=60)
+            w_exit = time.monotonic()
+            children1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+            if rec.returncode != 0:
+                raise RuntimeError(f"fielddiag record failed: {err}")
+            info = json.loads(
+                subprocess.run(
+                    [sys.executable, "-m", "fielddiag.cli", "info", "--json", str(path)],
+                    capture_output=True,
+                    text=True,
+                    check=True,
+                    cwd=REPO,
+                ).stdout
+            )
+    finally:
+        _stop(daq)
+    (w0, c0), (w1, c1) = marks[0], marks[-1]
+    steady = [(cb - ca) / (wb - wa) for (wa, ca), (wb, cb) in zip(marks, marks[1:], strict=False)]
+    steady = steady[len(steady) // 3 :] or steady  # past the estimator's warm-up
+    life_cpu_s = children1.ru_utime + children1.ru_stime - children0.ru_utime - children0.ru_stime
+    c = info["counters"]
+    online = "on (its advice was printed)" if "advice:" in err else "NOT reported"
+    print(
+        f"       samples stored {info['samples']} in {info['duration_s']:.1f} s, on-line "
+        f"estimator {online}"
+    )
+    print(
+        f"       frames received {c['frames_received']}, frames lost {c['frames_lost']}, "
+        f"CRC errors {c['crc_errors']}, gaps {len(info['gaps'])} (fielddiag info --json)"
+    )
+    print(
+        f"       recorder CPU {100 * (c1 - c0) / (w1 - w0):.1f} % of one core while recording "
+        f"(steady state {100 * float(np.median(steady)):.1f} %: median of the 0.5 s windows "
+        f"after the first third); whole process life, start-up included: {life_cpu_s:.1f} "
+        f"CPU-s over {w_exit - w_launch:.1f} s"
+    )
+    print("   goal: 0 frames lost and < 20 % of one core")
 
 
 def bench_can() -> None:
@@ -227,6 +346,7 @@ def main() -> None:
     bench_can()
     if not args.skip_recording:
         bench_recording(args.duration)
+        bench_record_command(args.duration)
 
 
 if __name__ == "__main__":

@@ -25,6 +25,7 @@ import json
 import os
 import re
 import threading
+import time
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import fields
 from datetime import UTC, datetime
@@ -501,11 +502,20 @@ class SessionWriter:
                 ) from exc
 
     def _flush_loop(self) -> None:
-        while not self._stop.wait(self.flush_interval_s):
+        """Flush on a monotonic schedule: flushes start every ``flush_interval_s``.
+
+        The wait is measured to the next deadline, not from the end of the last flush,
+        so the time a flush takes does not stretch the period. A flush that overruns its
+        slot is followed at once by the next, and the schedule restarts from there.
+        """
+        interval_s = self.flush_interval_s
+        deadline_s = time.monotonic() + interval_s
+        while not self._stop.wait(max(0.0, deadline_s - time.monotonic())):
             try:
                 self.flush()
             except SessionError:
                 return
+            deadline_s = max(deadline_s + interval_s, time.monotonic())
 
     # ------------------------------------------------------------------ closing
     def close(self) -> None:

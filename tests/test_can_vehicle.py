@@ -31,6 +31,7 @@ from fielddiag.session import SessionReader
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 LOG = DATA / "can" / "comma2k19_rav4_2018-08-02_seg40.log"
 DBC = DATA / "can" / "toyota_new_mc_pt_generated.dbc"
+ADAS_DBC = DATA / "can" / "toyota_adas.dbc"
 SPEED_CSV = DATA / "vehicle_imu" / "comma2k19_rav4_seg40_can_speed.csv"
 KMH = 1 / 3.6
 
@@ -226,3 +227,52 @@ def test_recorded_frames_decode_again_with_another_dbc(tmp_path, rav4):
     assert yaw.min() == pytest.approx(-2.27, abs=0.02) and yaw.max() == pytest.approx(
         0.42, abs=0.02
     )
+    _check_radar_bus_decodes_with_the_adas_dbc(frames)
+
+
+def _check_radar_bus_decodes_with_the_adas_dbc(frames: np.ndarray) -> None:
+    """The stored frames of bus 1 (the radar bus) decoded with a DBC that was not used
+    while recording: the status message and the 16 radar tracks, none failing."""
+    tracks = range(16)
+    wanted = ["STATUS_MSG.RADAR_STATUS"] + [
+        f"{q}{k}=TRACK_A_{k}.{sig}"
+        for k in tracks
+        for q, sig in (
+            ("dist", "LONG_DIST"),
+            ("lat", "LAT_DIST"),
+            ("rel", "REL_SPEED"),
+            ("valid", "VALID"),
+            ("count", "COUNTER"),
+        )
+    ]
+    specs, sig, errors = decode_stored_frames(frames, ADAS_DBC, wanted, decode_channel=1)
+    assert errors == 0
+    units = {s.name: s.unit for s in specs}
+    assert (units["dist0"], units["lat0"], units["rel0"]) == ("m", "m", "m/s")
+    # message counts: STATUS_MSG (0x123) at 10 Hz, every TRACK_A_k (0x210 + k) at 20 Hz
+    assert len(sig["RADAR_STATUS"][1]) == 600 and set(sig["RADAR_STATUS"][1]) == {1.0}
+    for k in tracks:
+        count = sig[f"count{k}"][1]
+        assert len(count) == 1200
+        # each track's rolling counter steps by exactly one: no frame lost, reordered
+        # or decoded from the wrong bytes
+        assert np.all(np.diff(count) % 256 == 1)
+        t = sig[f"count{k}"][0]
+        assert t[0] < 0.01 and t[-1] > 59.9 and np.all(np.diff(t) > 0)
+    # plausible radar targets: the tracks flagged valid, within the sensor's range
+    valid = np.concatenate([sig[f"valid{k}"][1] == 1 for k in tracks])
+    dist, lat, rel = (
+        np.concatenate([sig[f"{q}{k}"][1] for k in tracks])[valid] for q in ("dist", "lat", "rel")
+    )
+    assert valid.sum() == 10_100
+    assert dist.min() == pytest.approx(6.88, abs=1e-9) and dist.max() == pytest.approx(
+        181.61, abs=1e-9
+    )
+    assert lat.min() == pytest.approx(-7.16, abs=1e-9) and lat.max() == pytest.approx(
+        6.84, abs=1e-9
+    )
+    assert rel.min() == pytest.approx(-19.85, abs=1e-9) and rel.max() == pytest.approx(
+        10.225, abs=1e-9
+    )
+    # the radar messages are not on the powertrain bus
+    assert decode_stored_frames(frames, ADAS_DBC, wanted, decode_channel=0)[1:] == ({}, 0)

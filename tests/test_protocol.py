@@ -6,7 +6,7 @@ import struct
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
 from drivers.protocol import (
@@ -17,6 +17,7 @@ from drivers.protocol import (
     DeviceInfo,
     FrameParser,
     TextLineParser,
+    _frame,
     crc16_ccitt,
     crc32,
     encode_data,
@@ -192,6 +193,158 @@ def test_valid_frames_survive_any_garbage_between_them(frames, garbage, split):
     assert [(f.seq, f.t_us) for f in got] == [(seq, t) for seq, t, _, _ in frames]
     for f, (_, _, _, s) in zip(got, frames, strict=True):
         assert f.samples.tobytes() == s.tobytes()
+
+
+def _feed_in_pieces(stream: bytes, split: int) -> tuple[FrameParser, list]:
+    p = FrameParser()
+    out: list = []
+    for k in range(0, len(stream), split):
+        out += p.feed(stream[k : k + split])
+    return p, out
+
+
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    seed=st.integers(0, 2**31),
+    flips=st.lists(st.tuples(st.integers(0, 10**6), st.integers(1, 255)), min_size=1, max_size=6),
+    split=st.integers(1, 300),
+)
+def test_byte_flips_in_valid_frames_never_yield_a_damaged_frame(seed, flips, split):
+    """Random bytes almost never pass a CRC; flipped bytes inside real frames test the
+    property that matters: only frames exactly as sent come out, and every frame the
+    flips missed still does."""
+    rng = np.random.default_rng(seed)
+    frames = [encode_data(k, 1000 * k, rng.integers(-(2**15), 2**15, (5, 3)), 1) for k in range(6)]
+    stream = bytearray(b"".join(frames))
+    for pos, xor in flips:
+        stream[pos % len(stream)] ^= xor
+    starts = np.cumsum([0, *map(len, frames)])
+    intact = [f for f, a in zip(frames, starts, strict=False) if bytes(stream[a : a + len(f)]) == f]
+    p, out = _feed_in_pieces(bytes(stream), split)
+    got = [encode_data(f.seq, f.t_us, f.samples, f.sample_format) for f in out]
+    for raw in got:
+        assert raw in frames  # an original frame, byte for byte
+        _check_frame_integrity(raw)
+    assert got == intact  # a damaged frame never hides an intact neighbour
+    c = p.counters
+    assert c.frames == len(intact) and c.malformed == 0
+    assert c.bytes_discarded + p.pending_bytes == len(stream) - sum(map(len, intact))
+
+
+def _data_body_is_valid(body: bytes) -> bool:
+    """The rules of a DATA body (PROTOCOL.md), checked independently of the parser."""
+    if len(body) < 16:
+        return False
+    nch, fmt, n = body[12], body[13], int.from_bytes(body[14:16], "little")
+    size = {1: 2, 2: 4, 3: 4}.get(fmt)
+    return (
+        size is not None and 1 <= nch <= 64 and 1 <= n <= 4096 and len(body) == 16 + n * nch * size
+    )
+
+
+def _info_body_is_valid(body: bytes) -> bool:
+    """The rules of an INFO body (PROTOCOL.md), checked independently of the parser."""
+    if len(body) < 48:
+        return False
+    nch, fmt, spf = body[0], body[1], int.from_bytes(body[2:4], "little")
+    (rate,) = struct.unpack_from("<d", body, 4)
+    return (
+        1 <= nch <= 64
+        and fmt in (1, 2, 3)
+        and 1 <= spf <= 4096
+        and np.isfinite(rate)
+        and rate > 0
+        and len(body) == 48 + 12 * nch
+    )
+
+
+_BAD_FIELD_VALUES = {
+    "n_channels": [0, 65, 255],
+    "format": [0, 4, 255],
+    "samples": [0, 4097, 65535],
+    "rate": [0.0, -1.0, float("nan"), float("inf"), float("-inf")],
+    "length": [-12, -4, -1, 1, 4, 12],
+}
+
+
+@st.composite
+def _bodies(draw, frame_type: int) -> bytes:
+    """Arbitrary bodies: random bytes, bodies that follow the rules, and bodies that break
+    exactly one rule (a field out of range, or a length off by a little)."""
+    kind = draw(st.sampled_from(["random", "valid", "one rule broken"]))
+    if kind == "random":
+        return draw(st.binary(max_size=400))
+    broken = None
+    if kind == "one rule broken":
+        rules = ["n_channels", "format", "samples", "length"]
+        broken = draw(st.sampled_from(rules + (["rate"] if frame_type == 2 else [])))
+
+    def field(name: str, good: list):
+        return draw(st.sampled_from(_BAD_FIELD_VALUES[name] if name == broken else good))
+
+    nch = field("n_channels", [1, 2, 3, 8, 64])
+    fmt = field("format", [1, 2, 3])
+    if frame_type == 1:
+        n = field("samples", [1, 2, 5, 20, 4096])
+        size = n * nch * {1: 2, 2: 4, 3: 4}.get(fmt, 2)
+        if size > 60_000 and broken != "samples":  # keep the body under 65535 bytes
+            n = 60_000 // (size // n)
+            size = n * nch * {1: 2, 2: 4, 3: 4}.get(fmt, 2)
+        seq, t_us = draw(st.integers(0, 2**32 - 1)), draw(st.integers(0, 2**64 - 1))
+        head = struct.pack("<IQBBH", seq, t_us, nch, fmt, n)
+    else:
+        spf = field("samples", [1, 20, 4096])
+        rate = (
+            field("rate", [1e-3, 1.0, 2000.0, 1e6])
+            if broken == "rate"
+            else draw(st.floats(1e-3, 1e6))
+        )
+        serial, model = draw(st.binary(max_size=16)), draw(st.binary(max_size=16))
+        fw = draw(st.tuples(st.integers(0, 255), st.integers(0, 255)))
+        head = struct.pack("<BBHd16s16sBBH", nch, fmt, spf, rate, serial, model, *fw, 0)
+        size = 12 * nch  # channel records: random bytes (any full scale, role, axis)
+    if broken == "length":
+        size = max(0, size + draw(st.sampled_from(_BAD_FIELD_VALUES["length"])))
+    size = min(size, 60_000)  # a frame body holds at most 65535 bytes
+    payload = np.random.default_rng(draw(st.integers(0, 2**32 - 1))).bytes(size)
+    return head + payload
+
+
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(data=st.data(), frame_type=st.sampled_from([1, 2]), splits=st.lists(st.integers(1, 99)))
+def test_valid_envelope_around_any_body_decodes_or_counts_malformed(data, frame_type, splits):
+    """Both CRCs right, body anything: a DATA or INFO body that follows the rules is
+    decoded to exactly its fields; any other is counted as malformed and dropped."""
+    body = data.draw(_bodies(frame_type), label="body")
+    raw = _frame(frame_type, body)
+    cuts = sorted({c % len(raw) for c in splits} - {0})
+    p = FrameParser()
+    out: list = []
+    for a, b in zip([0, *cuts], [*cuts, len(raw)], strict=True):
+        out += p.feed(raw[a:b])
+    c = p.counters
+    assert p.pending_bytes == 0 and c.header_errors == 0 and c.crc_errors == 0
+    valid = _data_body_is_valid(body) if frame_type == 1 else _info_body_is_valid(body)
+    event(f"type {frame_type} {'valid' if valid else 'malformed'}")
+    if not valid:
+        assert out == [] and c.malformed == 1 and c.bytes_discarded == len(raw)
+        return
+    assert c.malformed == 0 and c.bytes_discarded == 0 and len(out) == 1
+    (f,) = out
+    if frame_type == 1:
+        assert isinstance(f, DataFrame)
+        assert encode_data(f.seq, f.t_us, f.samples, f.sample_format) == raw
+        assert f.samples.shape == (f.n_samples, f.n_channels)
+    else:
+        assert isinstance(f, DeviceInfo)
+        nch, fmt, spf, rate = struct.unpack_from("<BBHd", body)
+        assert (f.n_channels, f.sample_format, f.samples_per_frame) == (nch, fmt, spf)
+        assert f.sample_rate_hz == rate and f.firmware == (body[44], body[45])
+        for i, ch in enumerate(f.channels):
+            (fs,) = struct.unpack_from("<d", body, 48 + 12 * i)
+            assert ch.full_scale_mps2 == fs or (np.isnan(fs) and np.isnan(ch.full_scale_mps2))
+        assert f.serial_number == body[12:28].rstrip(b"\0").decode("ascii", "replace")
+        assert f.model == body[28:44].rstrip(b"\0").decode("ascii", "replace")
 
 
 # ------------------------------------------------------------------ text mode

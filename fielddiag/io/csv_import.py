@@ -2,18 +2,24 @@
 
 Columns are mapped to roles with ``--role ROLE=COLUMN``. Known roles: ``wheel``, ``body``
 (accelerations), ``speed`` (vehicle speed, stored as a signal), and for rig tests
-``force``, ``displacement``, ``acceleration``. Any other role name keeps that column as a
-channel of that name with role ``other``.
+``force``, ``displacement``, ``acceleration``. Any other ``NAME=COLUMN`` (``other=temp``,
+``t1=temp``) keeps that column as a channel named after the column itself, with role
+``other``; ``NAME`` only has to be unique. A ``NAME`` that looks like a misspelt role
+(``whel``) is an error suggesting the role.
 
 Every problem is reported as one :class:`~fielddiag.errors.ImportFormatError` naming the
 file, the row or column and what to do; nothing is written unless the whole file is good.
+Rows are numbered as lines of the file (the header is row 1), blank lines included, so
+the number is the line an editor shows.
 """
 
 from __future__ import annotations
 
 import csv
+import difflib
 import math
 import os
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -91,6 +97,27 @@ def read_csv_columns(
     path: Path, columns: list[str], delimiter: str | None = None
 ) -> dict[str, np.ndarray]:
     """Read the named columns of a CSV file as float64 arrays, with row-exact errors."""
+    return read_csv_table(path, columns, delimiter)[0]
+
+
+def read_csv_table(
+    path: Path, columns: list[str], delimiter: str | None = None
+) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """The named columns of a CSV file as float64 arrays, and the file line of every row.
+
+    Returns
+    -------
+    columns : dict column name -> ndarray
+    line_numbers : ndarray of int
+        Line of the file each data row was read from (the header is line 1), for
+        messages about a row found bad later (a time going backwards).
+
+    Raises
+    ------
+    ImportFormatError
+        No such file, empty file, missing or repeated column, a row with fewer or more
+        fields than the header, a cell that is not a finite number, fewer than two rows.
+    """
     name = path.name
     try:
         fh = open(path, newline="", encoding="utf-8-sig")
@@ -119,49 +146,94 @@ def read_csv_columns(
             )
         index = [header.index(c) for c in columns]
         values: list[list[float]] = [[] for _ in columns]
+        lines: list[int] = []
         reader = csv.reader(fh, delimiter=delim)
-        for row_no, row in enumerate(reader, start=2):
+        for row in reader:
+            line_no = 1 + reader.line_num  # the header line was read before the reader
             if not row or all(not cell.strip() for cell in row):
                 continue
-            if len(row) < len(header):
+            if len(row) != len(header):
                 raise ImportFormatError(
-                    f"{name} row {row_no}: {len(row)} fields, the header has {len(header)}; "
+                    f"{name} row {line_no}: {len(row)} fields, the header has {len(header)}; "
                     "fix or delete that row"
                 )
             for k, i in enumerate(index):
-                cell = row[i].strip()
-                try:
-                    v = float(cell)
-                except ValueError:
-                    raise ImportFormatError(
-                        f"{name} row {row_no}, column {columns[k]!r}: {cell!r} is not a number; "
-                        "fix or delete that row"
-                    ) from None
-                if not math.isfinite(v):
-                    raise ImportFormatError(
-                        f"{name} row {row_no}, column {columns[k]!r}: {cell!r} is not a finite "
-                        "number; fill the gap or cut the file there"
-                    )
-                values[k].append(v)
-    n = len(values[0]) if values else 0
+                values[k].append(_cell_value(name, line_no, columns[k], row[i]))
+            lines.append(line_no)
+    n = len(lines)
     if n < 2:
         raise ImportFormatError(
             f"{name}: {n} data row{'s' if n != 1 else ''}; a session needs at least two samples"
         )
-    return {c: np.asarray(v, dtype="f8") for c, v in zip(columns, values, strict=True)}
+    data = {c: np.asarray(v, dtype="f8") for c, v in zip(columns, values, strict=True)}
+    return data, np.asarray(lines, dtype="i8")
 
 
-def _check_time(name: str, time_column: str, t: np.ndarray) -> None:
+def _cell_value(name: str, line_no: int, column: str, text: str) -> float:
+    cell = text.strip()
+    try:
+        v = float(cell)
+    except ValueError:
+        raise ImportFormatError(
+            f"{name} row {line_no}, column {column!r}: {cell!r} is not a number; "
+            "fix or delete that row"
+        ) from None
+    if not math.isfinite(v):
+        raise ImportFormatError(
+            f"{name} row {line_no}, column {column!r}: {cell!r} is not a finite "
+            "number; fill the gap or cut the file there"
+        )
+    return v
+
+
+def _check_time(name: str, time_column: str, t: np.ndarray, line_numbers: np.ndarray) -> None:
     dt = np.diff(t)
     bad = np.flatnonzero(dt <= 0)
     if bad.size:
         i = int(bad[0])
         kind = "repeats" if dt[i] == 0 else "goes backwards"
         raise ImportFormatError(
-            f"{name} row {i + 3}, column {time_column!r}: time {kind} "
+            f"{name} row {line_numbers[i + 1]}, column {time_column!r}: time {kind} "
             f"({t[i]:g} then {t[i + 1]:g}); times must increase strictly; sort the file or "
             "remove duplicate rows"
         )
+
+
+def _check_units(name: str, options: CsvImportOptions) -> None:
+    for what, unit, known in (
+        ("acceleration", options.accel_unit, ACCEL_UNITS),
+        ("time", options.time_unit, TIME_UNITS),
+        ("speed", options.speed_unit, SPEED_UNITS),
+    ):
+        if unit not in known:
+            raise ImportFormatError(
+                f"{name}: unknown {what} unit {unit!r}; use one of {', '.join(known)}"
+            )
+
+
+def _check_roles(name: str, roles: Mapping[str, str]) -> None:
+    """A role name that is not a role but close to one is a typo, not an extra column."""
+    for role, col in roles.items():
+        if role in KNOWN_ROLES or role == "other":
+            continue
+        close = [r for r in KNOWN_ROLES if len(role) >= 3 and r.startswith(role)]
+        close = close or difflib.get_close_matches(role, list(KNOWN_ROLES), n=1, cutoff=0.75)
+        if close:
+            raise ImportFormatError(
+                f"{name}: --role {role}={col}: did you mean {close[0]}? The roles are "
+                f"{', '.join(KNOWN_ROLES)}; to keep the column under its own name, write "
+                f"--role other={col}"
+            )
+
+
+def _extra_channel_name(column: str, taken: set[str]) -> str:
+    """The channel name for a column kept as it is: the column's own name, made a valid
+    and unique session name (``acc x [g]`` -> ``acc_x__g_``)."""
+    base = re.sub(r"[^A-Za-z0-9_.\-]", "_", column.strip()) or "column"
+    name, k = base, 2
+    while name in taken:
+        name, k = f"{base}_{k}", k + 1
+    return name
 
 
 def import_csv(
@@ -182,39 +254,31 @@ def import_csv(
     Raises
     ------
     ImportFormatError
-        Missing column, bad number, non-monotonic or duplicate time, empty file, bad unit.
+        Missing column, bad number, non-monotonic or duplicate time, empty file, bad unit,
+        a row with the wrong number of fields, a misspelt role.
     SessionError
         The output exists and ``overwrite`` is False.
     """
     path = Path(path)
-    if options.accel_unit not in ACCEL_UNITS:
-        raise ImportFormatError(
-            f"unknown acceleration unit {options.accel_unit!r}; use one of {', '.join(ACCEL_UNITS)}"
-        )
-    if options.time_unit not in TIME_UNITS:
-        raise ImportFormatError(
-            f"unknown time unit {options.time_unit!r}; use one of {', '.join(TIME_UNITS)}"
-        )
-    if options.speed_unit not in SPEED_UNITS:
-        raise ImportFormatError(
-            f"unknown speed unit {options.speed_unit!r}; use one of {', '.join(SPEED_UNITS)}"
-        )
+    _check_units(path.name, options)
     if not options.roles:
         raise ImportFormatError(
             "say which columns to import with --role ROLE=COLUMN (e.g. --role wheel=acc_w "
             "--role body=acc_b)"
         )
+    _check_roles(path.name, options.roles)
     cols = [options.time_column, *options.roles.values()]
     if len(set(cols)) != len(cols):
         raise ImportFormatError("the same column is mapped twice (check --time and --role)")
-    data = read_csv_columns(path, cols, options.delimiter)
+    data, line_numbers = read_csv_table(path, cols, options.delimiter)
     t = data[options.time_column] * TIME_UNITS[options.time_unit]
-    _check_time(path.name, options.time_column, t)
+    _check_time(path.name, options.time_column, t, line_numbers)
     rate_hz = 1.0 / float(np.median(np.diff(t)))
 
     channels: list[ChannelSpec] = []
     columns: list[np.ndarray] = []
     signals: dict[SignalSpec, tuple[np.ndarray, np.ndarray]] = {}
+    extras: list[tuple[str, np.ndarray]] = []  # columns kept under their own name
     for role, col in options.roles.items():
         values = data[col]
         unit, kind = KNOWN_ROLES.get(role, ("", "plain"))
@@ -228,7 +292,14 @@ def import_csv(
             name = {"wheel": "wheel_z", "body": "body_z"}.get(role, role)
             channels.append(ChannelSpec(name, unit=unit, role=role, sensor=f"csv:{col}"))
         else:
-            channels.append(ChannelSpec(role, unit="", role="other", sensor=f"csv:{col}"))
+            extras.append((col, values))
+            continue
+        columns.append(values)
+    taken = {c.name for c in channels}
+    for col, values in extras:  # after the role channels, whose names are fixed
+        name = _extra_channel_name(col, taken)
+        taken.add(name)
+        channels.append(ChannelSpec(name, unit="", role="other", sensor=f"csv:{col}"))
         columns.append(values)
     if not channels:
         raise ImportFormatError("no DAQ channel to import: map at least one column besides speed")
