@@ -160,7 +160,7 @@ class DataFrame:
     sample_format: int
     n_samples: int
     payload: bytes
-    skipped_bytes: int = 0  # bytes discarded (garbage, damaged frames) just before this frame
+    skipped_bytes: int = 0  # bytes discarded (garbage, damaged frames) since the last DATA frame
 
     @property
     def samples(self) -> np.ndarray:
@@ -330,7 +330,9 @@ class FrameParser:
             else:
                 c.frames += 1
                 out.append(frame)
-                self._discarded_at_frame = c.bytes_discarded
+                if ftype == TYPE_DATA:
+                    # bytes lost before an INFO answer still count for the next DATA frame
+                    self._discarded_at_frame = c.bytes_discarded
             pos = end
         if pos:
             del buf[:pos]

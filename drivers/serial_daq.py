@@ -391,8 +391,13 @@ class SerialDAQSource(_SerialPortSource):
         while time.monotonic() < deadline:
             data = self._port.read(max(1, self._port.in_waiting))
             if data:
-                for f in self._parser.feed(data):
+                frames = self._parser.feed(data)
+                for k, f in enumerate(frames):
                     if isinstance(f, DeviceInfo):
+                        # data frames that came in the same read are kept, not dropped
+                        self._backlog.extend(
+                            g for g in frames[k + 1:] if not isinstance(g, DeviceInfo)
+                        )
                         return f
                     self._backlog.append(f)
             if time.monotonic() > next_ask:

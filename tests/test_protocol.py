@@ -134,6 +134,19 @@ def test_damaged_frame_dropped_neighbours_kept(rng):
     assert p.counters.header_errors == 1
 
 
+def test_bytes_lost_before_an_info_answer_count_for_the_next_data_frame(rng):
+    """A damaged DATA frame followed by an INFO answer (the host asked again after a
+    reconnect) and then good DATA: the next DATA frame still reports the bytes thrown
+    away, so the missing frame is blamed on damage, not on the device."""
+    frames = [encode_data(k, k, rng.integers(-9, 9, (10, 4)), 2) for k in range(3)]
+    bad = bytearray(frames[1])
+    bad[30] ^= 0x01
+    out = FrameParser().feed(frames[0] + bytes(bad) + encode_info(INFO) + frames[2])
+    assert [type(f).__name__ for f in out] == ["DataFrame", "DeviceInfo", "DataFrame"]
+    assert out[0].skipped_bytes == 0
+    assert out[2].skipped_bytes == len(bad)
+
+
 def test_frames_to_samples_concatenates_in_order(rng):
     parts = [rng.integers(-100, 100, (6, 3)).astype("<i2") for _ in range(4)]
     frames = FrameParser().feed(b"".join(encode_data(k, 0, s, 1) for k, s in enumerate(parts)))
