@@ -18,9 +18,10 @@ def register(sub: argparse._SubParsersAction) -> None:
             "(--format overrides): "
             + "; ".join(f"{f.name}: {f.description}" for f in FORMATS.values())
             + ". CSV: map columns to roles with --role ROLE=COLUMN (roles: wheel, body, "
-            "speed, and for rig tests force, displacement, acceleration; any other ROLE keeps "
-            "the column under that name). CAN logs and MDF4 bus logging: --dbc FILE and "
-            "--signal NAME."
+            "speed, and for rig tests force, displacement, acceleration; --role other=COLUMN, "
+            "or any other name, keeps the column as a channel named after the column; a name "
+            "close to a role, such as whel, is refused as a typo). CAN logs and MDF4 bus "
+            "logging: --dbc FILE and --signal NAME."
         ),
     )
     p.add_argument("file", help="file (or PVS folder) to import")

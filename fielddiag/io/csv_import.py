@@ -211,7 +211,7 @@ def _check_units(name: str, options: CsvImportOptions) -> None:
             )
 
 
-def _check_roles(name: str, roles: Mapping[str, str]) -> None:
+def check_role_names(name: str, roles: Mapping[str, str]) -> None:
     """A role name that is not a role but close to one is a typo, not an extra column."""
     for role, col in roles.items():
         if role in KNOWN_ROLES or role == "other":
@@ -266,7 +266,7 @@ def import_csv(
             "say which columns to import with --role ROLE=COLUMN (e.g. --role wheel=acc_w "
             "--role body=acc_b)"
         )
-    _check_roles(path.name, options.roles)
+    check_role_names(path.name, options.roles)
     cols = [options.time_column, *options.roles.values()]
     if len(set(cols)) != len(cols):
         raise ImportFormatError("the same column is mapped twice (check --time and --role)")

@@ -528,10 +528,11 @@ def import_mdf(
         asammdf is not installed.
     """
     require_asammdf()
-    from fielddiag.io.csv_import import parse_role_args
+    from fielddiag.io.csv_import import check_role_names, parse_role_args
 
     path = Path(path)
     role_map = dict(roles) if isinstance(roles, Mapping) else parse_role_args(list(roles or []))
+    check_role_names(path.name, role_map)
     if signals and not dbc:
         raise ImportFormatError("--signal decodes CAN bus logging: pass the DBC with --dbc FILE")
     mdf = _open_mdf(path)
