@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -59,14 +61,15 @@ def test_errors_are_one_line_exit_1(tmp_path):
 
 
 def test_demo_records_identifies_and_diagnoses(tmp_path):
-    """The README's main job, shortened: recorded through the virtual devices in real time."""
-    proc = _cli("demo", "--out", str(tmp_path / "demo"), "--duration", "40", "--no-serve")
+    """The README's main job, shortened to the shortest drives the demo accepts: recorded
+    through the virtual devices in real time."""
+    proc = _cli("demo", "--out", str(tmp_path / "demo"), "--duration", "32", "--no-serve")
     assert proc.returncode == 0, proc.stderr
     (run,) = sorted((tmp_path / "demo").iterdir())
     with SessionReader(run / "before.h5") as b, SessionReader(run / "after.h5") as a:
         assert b.metadata.added_mass_kg == 0.0 and a.metadata.added_mass_kg == 60.0
         assert b.counters["frames_lost"] == 0 and b.counters["frames_received"] > 0
-        assert b.duration_s == pytest.approx(40.0, abs=1.5)
+        assert b.duration_s == pytest.approx(32.0, abs=1.5)
         assert {s.name for s in b.signals} >= {"vehicle_speed"}
     ident = json.loads((run / "identify.json").read_text())
     assert ident["sprung_mass_kg"]["value"] > 0 and ident["sprung_mass_kg"]["std"] > 0
@@ -74,3 +77,68 @@ def test_demo_records_identifies_and_diagnoses(tmp_path):
     assert diag["verdict"] in ("adequate", "missing_physics")
     assert (run / "plots" / "transmissibility.png").exists()
     assert "4/4 dashboard skipped" in proc.stdout
+    # the dashboard the demo serves finds both drives processed, with the demo's results
+    from fielddiag.catalog import Catalog
+
+    listed = {s.path: s.processed for s in Catalog(tmp_path / "demo").scan()}
+    for drive in ("before", "after"):
+        assert listed[f"{run.name}/{drive}.h5"] == {
+            "diagnose": f"{run.name}/{drive}.diagnose.json",
+            "identify": f"{run.name}/{drive}.identify.json"}
+        beside = json.loads((run / f"{drive}.identify.json").read_text())
+        assert beside["sprung_mass_kg"] == ident["sprung_mass_kg"]
+        beside = json.loads((run / f"{drive}.diagnose.json").read_text())
+        assert beside["verdict"] == diag["verdict"] and beside["findings"] == diag["findings"]
+        assert beside["session_paths"] == ["before.h5", "after.h5"]
+
+
+def test_demo_ends_by_serving_its_sessions(tmp_path):
+    """``fielddiag demo`` (the shortest drives it accepts) ends by serving the dashboard:
+    the address it prints answers."""
+    import socket
+    import threading
+
+    import httpx
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("PYTEST_", "NICEGUI_"))}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "fielddiag.cli", "demo", "--out", str(tmp_path / "demo"),
+         "--duration", "32", "--port", str(port)],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
+    lines: list[str] = []
+    served = threading.Event()
+
+    def read() -> None:
+        for line in proc.stdout:
+            lines.append(line)
+            if "fielddiag dashboard for" in line:
+                served.set()
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    try:
+        assert served.wait(150), "".join(lines)
+        (line,) = [x for x in lines if "fielddiag dashboard for" in x]
+        url = line.split(" at ", 1)[1].split()[0]
+        assert url == f"http://127.0.0.1:{port}/"
+        for _ in range(100):  # the address is printed just before the server listens
+            try:
+                r = httpx.get(url, timeout=5)
+                break
+            except httpx.TransportError:
+                time.sleep(0.1)
+        else:
+            raise AssertionError(f"{url} does not answer: {''.join(lines)}")
+        assert r.status_code == 200 and "fielddiag" in r.text
+        assert "4/4 serving the dashboard" in "".join(lines)
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(15)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(5)
+        reader.join(5)

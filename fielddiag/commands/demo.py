@@ -22,6 +22,9 @@ import time
 from pathlib import Path
 
 DEFAULT_ADDED_MASS_KG = 60.0
+#: Shortest drive the demo records: the identification needs 30 s of data, and a drive
+#: recorded for 30 s holds slightly less (the first frames arrive after the start).
+MIN_DURATION_S = 32.0
 #: The demo car's hidden physics: dry friction in the strut (concealed: the linear model
 #: alone fits its body acceleration well by eye).
 DEMO_EFFECTS = (("coulomb_friction", {"friction_force_n": 70.0}),)
@@ -33,7 +36,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--out", default="fielddiag-demo", help="folder for the demo's runs")
     p.add_argument("--duration", type=float, default=120.0, metavar="S",
-                   help="length of each recorded drive (real time; default 120)")
+                   help=f"length of each recorded drive (real time; default 120, at least "
+                        f"{MIN_DURATION_S:g})")
     p.add_argument("--added-mass", type=float, default=DEFAULT_ADDED_MASS_KG, metavar="KG")
     p.add_argument("--seed", type=int, default=1, help="random seed of the demo car's roads")
     p.add_argument("--no-serve", action="store_true", help="do not start the dashboard at the end")
@@ -104,13 +108,32 @@ def _record_pair(run_dir: Path, args: argparse.Namespace) -> list[Path]:
     return [results["before"], results["after"]]
 
 
+def _store_beside_sessions(result: dict, kind: str, sessions: list[Path]) -> list[Path]:
+    """Write a result where the dashboard finds it: ``<stem>.<kind>.json`` beside each
+    session of the pair (the catalog then lists both drives as processed, and the
+    identification and diagnosis pages show it for either)."""
+    from fielddiag.catalog import result_path
+
+    text = json.dumps(result, indent=1)
+    written = []
+    for session in sessions:
+        path = result_path(session, kind)
+        path.write_text(text, encoding="utf-8")
+        written.append(path)
+    return written
+
+
 def run(args: argparse.Namespace) -> int:
     from fielddiag.errors import FieldDiagError
     from fielddiag.identify import identify_sessions
     from fielddiag.plots import write_identify_plots
 
-    if args.duration < 30:
-        raise FieldDiagError("--duration must be at least 30 s for the identification")
+    if args.duration < MIN_DURATION_S:
+        raise FieldDiagError(
+            f"--duration must be at least {MIN_DURATION_S:g} s: the identification needs 30 s "
+            "of each drive, and a recording holds a little less than it ran for")
+    if not args.no_serve and not 0 < args.port < 65536:
+        raise FieldDiagError(f"--port must be between 1 and 65535, not {args.port}")
     run_dir = _new_run_dir(Path(args.out))
     print(f"fielddiag demo: writing into {run_dir}")
     print(
@@ -126,6 +149,9 @@ def run(args: argparse.Namespace) -> int:
     ident = identify_sessions(before, after, added_mass_kg=args.added_mass)
     print("    " + ident.summary().replace("\n", "\n    "))
     ident.to_json(run_dir / "identify.json")
+    ident_dict = ident.to_dict()
+    ident_dict.setdefault("added_mass_kg", args.added_mass)
+    _store_beside_sessions(ident_dict, "identify", [before, after])
     write_identify_plots(ident, run_dir / "plots")
 
     print("3/4 diagnosing: where does the linear model miss, and why?")
@@ -136,6 +162,8 @@ def run(args: argparse.Namespace) -> int:
     diag = diagnose_sessions([before, after], added_mass_kg=args.added_mass)
     out = diag.to_dict()
     (run_dir / "diagnose.json").write_text(json.dumps(out, indent=2))
+    _store_beside_sessions({"session_paths": [before.name, after.name], **out}, "diagnose",
+                           [before, after])
     write_diagnosis_plots(diag, run_dir / "plots")
     print("    " + format_summary(out).replace("\n", "\n    "))
     print(
@@ -143,13 +171,15 @@ def run(args: argparse.Namespace) -> int:
         f"{DEMO_EFFECTS[0][1]['friction_force_n']:g} N in its strut)"
     )
     print(f"    results: {run_dir / 'identify.json'}, {run_dir / 'diagnose.json'}, "
-          f"plots in {run_dir / 'plots'}")
+          f"plots in {run_dir / 'plots'}; for the dashboard also beside each drive "
+          "(before.identify.json, before.diagnose.json...)")
     if args.no_serve:
         print("4/4 dashboard skipped (--no-serve); start it with "
               f"`fielddiag serve --root {Path(args.out)}`")
         return 0
     from fielddiag.web.app import serve
 
-    print(f"4/4 dashboard on http://127.0.0.1:{args.port}/  (Ctrl-C to stop)")
-    serve(Path(args.out), host="127.0.0.1", port=args.port)
+    print("4/4 serving the dashboard over the demo's runs (Ctrl-C to stop)", flush=True)
+    serve(Path(args.out), host="127.0.0.1", port=args.port,
+          print_address=lambda line: print(line, flush=True))
     return 0

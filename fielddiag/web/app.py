@@ -13,6 +13,8 @@ uploads are size-limited.
 
 from __future__ import annotations
 
+import ipaddress
+import socket
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -32,7 +34,14 @@ from fielddiag.web.security import (
     new_token,
 )
 
-__all__ = ["DashboardConfig", "DashboardState", "address", "serve", "setup_app"]
+__all__ = [
+    "DashboardConfig",
+    "DashboardState",
+    "address",
+    "machine_address",
+    "serve",
+    "setup_app",
+]
 
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8080
@@ -84,11 +93,40 @@ class DashboardState:
         return resolve_under_root(self.config.root, relative)
 
 
+def machine_address() -> str:
+    """This machine's address as other machines on its network reach it.
+
+    The address of the interface that routes outwards (a UDP socket "connected" to a
+    documentation address: nothing is sent), else what the host name resolves to, else
+    the host name itself.
+    """
+    try:
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            s.connect(("192.0.2.1", 9))  # TEST-NET-1: routing only, no packet leaves
+            ip = s.getsockname()[0]
+        if ip and not ipaddress.ip_address(ip).is_loopback and ip != "0.0.0.0":
+            return ip
+    except OSError:
+        pass
+    name = socket.gethostname()
+    try:
+        ip = socket.gethostbyname(name)
+        if not ipaddress.ip_address(ip).is_loopback:
+            return ip
+    except (OSError, ValueError):
+        pass
+    return name
+
+
 def address(config: DashboardConfig) -> str:
-    """The address to open in a browser (with the token when one is required)."""
-    host = config.host
-    shown = "127.0.0.1" if host in ("0.0.0.0", "") else ("[::1]" if host == "::" else host)
-    if ":" in shown and not shown.startswith("["):
+    """The address to open in a browser (with the token when one is required).
+
+    For a wildcard host (``0.0.0.0``, ``::``) that is this machine's network address
+    (:func:`machine_address`), which a remote browser can open; otherwise the host given.
+    """
+    host = config.host.strip()
+    shown = machine_address() if host in ("0.0.0.0", "", "::", "[::]") else host.strip("[]")
+    if ":" in shown:
         shown = f"[{shown}]"
     url = f"http://{shown}:{config.port}/"
     return f"{url}?token={config.token}" if config.token else url
@@ -196,6 +234,10 @@ def serve(
     if print_address is not None:
         where = "" if is_loopback(host) else " (access token required: keep this address private)"
         print_address(f"fielddiag dashboard for {config.root} at {address(config)}{where}")
+        if host.strip("[] ") in ("0.0.0.0", "::", ""):
+            local = DashboardConfig(root=config.root, host="127.0.0.1", port=config.port,
+                                    token=config.token)
+            print_address(f"  on this computer: {address(local)}")
     ui.run(
         root_fn,
         host=host,

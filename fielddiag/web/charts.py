@@ -25,8 +25,10 @@ TOP_PX = 44
 BOTTOM_PX = 70
 
 __all__ = [
+    "bin_position",
     "heatmap_options",
     "pairs",
+    "region_box",
     "spectrum_options",
     "surface_options",
     "timeseries_height_px",
@@ -204,17 +206,22 @@ def xy_options(
     mark_x_windows: Sequence[tuple[float, float]] = (),
     y_min: float | None = None,
     y_max: float | None = None,
+    zoom: bool = False,
 ) -> dict[str, Any]:
     """One x/y plot of several named line series.
 
     Parameters
     ----------
     series : sequence of dict
-        Each ``{"name", "x", "y"}`` with arrays, optional ``"dashed": True``, ``"color"``.
+        Each ``{"name", "x", "y"}`` with arrays; optional ``"dashed": True``, ``"color"``,
+        ``"width"`` (px) and ``"opacity"``.
     mark_x_band : (lo, hi) or None
         A shaded band on the x axis (the frequency band where a mismatch lives).
     mark_x_windows : sequence of (lo, hi)
         Shaded windows on the x axis (time windows where a mismatch lives).
+    zoom : bool
+        Zoom the x axis with the mouse wheel and the toolbox's box zoom (in the browser:
+        the series hold every point already).
     """
     out_series = []
     for i, s in enumerate(series):
@@ -224,7 +231,8 @@ def xy_options(
             "showSymbol": False,
             "animation": False,
             "color": s.get("color", PALETTE[i % len(PALETTE)]),
-            "lineStyle": {"width": 1.5, "type": "dashed" if s.get("dashed") else "solid"},
+            "lineStyle": {"width": s.get("width", 1.5), "opacity": s.get("opacity", 1.0),
+                          "type": "dashed" if s.get("dashed") else "solid"},
             "data": pairs(s["x"], s["y"]),
         }
         out_series.append(d)
@@ -244,7 +252,7 @@ def xy_options(
         y_axis["min"] = y_min
     if y_max is not None:
         y_axis["max"] = y_max
-    return {
+    options: dict[str, Any] = {
         "animation": False,
         "title": {"text": title, "left": "center", "textStyle": {"fontSize": 13}},
         "legend": {"top": 24},
@@ -255,6 +263,11 @@ def xy_options(
         "yAxis": y_axis,
         "series": out_series,
     }
+    if zoom:
+        options["dataZoom"] = [{"type": "inside", "xAxisIndex": 0, "filterMode": "none"}]
+        options["toolbox"] = {"right": 20, "feature": {"dataZoom": {"yAxisIndex": "none"},
+                                                       "restore": {}}}
+    return options
 
 
 def spectrum_options(
@@ -265,8 +278,12 @@ def spectrum_options(
     title: str = "Transmissibility |X2/X1|",
     band_hz: tuple[float, float] | None = None,
     band_label: str = "mismatch",
+    y_name: str = "|T|",
 ) -> dict[str, Any]:
-    """Transmissibility magnitudes (log-log) above their coherences (linear, 0..1)."""
+    """Transmissibility magnitudes (log-log) above their coherences (linear, 0..1).
+
+    Any spectra will do (``y_name`` names their axis), e.g. a residual's PSD.
+    """
     freq_hz = np.asarray(freq_hz, dtype="f8")
     pos = freq_hz > 0
     series: list[dict[str, Any]] = []
@@ -302,7 +319,7 @@ def spectrum_options(
     x_axes: list[dict[str, Any]] = [{"type": "log", "gridIndex": 0, "name": "" if has_coh
                                      else "frequency [Hz]", "nameLocation": "middle",
                                      "nameGap": 28}]
-    y_axes: list[dict[str, Any]] = [{"type": "log", "gridIndex": 0, "name": "|T|",
+    y_axes: list[dict[str, Any]] = [{"type": "log", "gridIndex": 0, "name": y_name,
                                      "nameLocation": "middle", "nameGap": 50}]
     if has_coh:
         grids.append({"left": 70, "right": 24, "top": 370, "height": 90})
@@ -379,6 +396,44 @@ def surface_options(
     }
 
 
+REGION_COLOURS = ("#000000", "#00a651", "#7b2cbf", "#ff00c8")
+
+
+def _bin_edges(centers: np.ndarray) -> np.ndarray:
+    """Edges of bins with the given centres (midpoints; the outer ones half a bin out)."""
+    c = np.asarray(centers, dtype="f8")
+    if c.size == 1:
+        return np.array([c[0] - 0.5, c[0] + 0.5])
+    mid = 0.5 * (c[1:] + c[:-1])
+    return np.concatenate(([c[0] - (mid[0] - c[0])], mid, [c[-1] + (c[-1] - mid[-1])]))
+
+
+def bin_position(value: float, edges: np.ndarray) -> float:
+    """Where ``value`` falls on a category axis of bins with ``edges``, in bin indices.
+
+    Bin ``i`` spans ``i - 0.5`` to ``i + 0.5`` (its centre is the category ``i``); values
+    outside the grid are clipped to its border.
+    """
+    e = np.asarray(edges, dtype="f8")
+    return float(np.interp(value, e, np.arange(e.size))) - 0.5
+
+
+def region_box(region: dict[str, Any]) -> tuple[tuple[float, float], tuple[float, float]] | None:
+    """``((r_lo, r_hi), (rdot_lo, rdot_hi))`` of a located region, or None if it has none.
+
+    Accepts the engine's ``{"r_m": [lo, hi], "rdot_mps": [lo, hi]}`` and the rig
+    diagnosis's ``{"displacement": [lo, hi], "velocity": [lo, hi]}``.
+    """
+    r = region.get("r_m", region.get("displacement"))
+    v = region.get("rdot_mps", region.get("velocity"))
+    try:
+        (r0, r1), (v0, v1) = r, v
+        box = ((float(r0), float(r1)), (float(v0), float(v1)))
+    except (TypeError, ValueError):
+        return None
+    return box if all(math.isfinite(x) for pair in box for x in pair) else None
+
+
 def heatmap_options(
     x_centers: np.ndarray,
     y_centers: np.ndarray,
@@ -390,13 +445,32 @@ def heatmap_options(
     value_name: str = "force per unit mass [m/s²]",
     x_scale: float = 1e3,
     y_scale: float = 1e3,
+    region: Sequence[dict[str, Any]] = (),
+    x_edges: np.ndarray | None = None,
+    y_edges: np.ndarray | None = None,
+    value_unit: str = "m/s²",
 ) -> dict[str, Any]:
     """A binned surface ``grid[i][j]`` over (x_centers[i], y_centers[j]) as a heatmap.
 
     Empty bins (None) stay blank. Axis labels are the bin centres times the scales (mm).
+    A surface of both signs gets a colour scale symmetric about 0 (0 in the neutral
+    middle colour), so the sign of a cell reads at a glance.
+
+    Parameters
+    ----------
+    region : sequence of dict
+        Regions of (r, rdot) to outline (where a mismatch lives), each
+        ``{"r_m": [lo, hi], "rdot_mps": [lo, hi], "name": label}`` in the units of the
+        centres (m, m/s). Their ranges become bin-index ranges (fractional where a region
+        does not sit on the bin edges) drawn on a hidden value axis laid over the
+        category axes, so an outline covers whole cells, not cell centres.
+    x_edges, y_edges : ndarray, optional
+        Bin edges (default: midway between the centres).
     """
-    xs = [f"{v * x_scale:.3g}" for v in np.asarray(x_centers, dtype="f8")]
-    ys = [f"{v * y_scale:.3g}" for v in np.asarray(y_centers, dtype="f8")]
+    xc = np.asarray(x_centers, dtype="f8")
+    yc = np.asarray(y_centers, dtype="f8")
+    xs = [f"{v * x_scale:.3g}" for v in xc]
+    ys = [f"{v * y_scale:.3g}" for v in yc]
     data, vals = [], []
     for i, row in enumerate(grid):
         for j, v in enumerate(row):
@@ -405,19 +479,67 @@ def heatmap_options(
             data.append([i, j, round(float(v), 6)])
             vals.append(float(v))
     lo, hi = (min(vals), max(vals)) if vals else (0.0, 1.0)
+    if lo < 0.0 < hi:
+        hi = max(-lo, hi)
+        lo = -hi
+    series: list[dict[str, Any]] = [{"type": "heatmap", "data": data, "name": value_name,
+                                     "progressive": 0, "animation": False}]
+    # axisLine.onZero off: with the hidden value axes below on the same grid, ECharts
+    # would otherwise draw each category axis line through the other axis's zero
+    x_axes: list[dict[str, Any]] = [{"type": "category", "data": xs, "name": x_name,
+                                     "nameLocation": "middle", "nameGap": 32,
+                                     "axisLine": {"onZero": False},
+                                     "splitArea": {"show": False}}]
+    y_axes: list[dict[str, Any]] = [{"type": "category", "data": ys, "name": y_name,
+                                     "nameLocation": "middle", "nameGap": 55,
+                                     "axisLine": {"onZero": False},
+                                     "splitArea": {"show": False}}]
+    areas = _region_areas(region, _bin_edges(xc) if x_edges is None else x_edges,
+                          _bin_edges(yc) if y_edges is None else y_edges)
+    if areas and xc.size and yc.size:
+        for axes, n in ((x_axes, xc.size), (y_axes, yc.size)):
+            axes.append({"type": "value", "min": -0.5, "max": n - 0.5, "show": False})
+        series.append({
+            "type": "scatter", "name": "mismatch region", "xAxisIndex": 1, "yAxisIndex": 1,
+            "data": [], "silent": True, "animation": False,
+            # above the heatmap's cells (a markArea lies at z 1, under series at z 2)
+            "markArea": {"silent": True, "animation": False, "z": 5, "data": areas},
+        })
     return {
         "animation": False,
         "title": {"text": title, "left": "center", "textStyle": {"fontSize": 13}},
         "grid": {"left": 80, "right": 100, "top": 40 if title else 16, "bottom": 60},
         "tooltip": {"position": "top"},
-        "xAxis": {"type": "category", "data": xs, "name": x_name, "nameLocation": "middle",
-                  "nameGap": 32, "splitArea": {"show": False}},
-        "yAxis": {"type": "category", "data": ys, "name": y_name, "nameLocation": "middle",
-                  "nameGap": 55, "splitArea": {"show": False}},
+        "xAxis": x_axes if len(x_axes) > 1 else x_axes[0],
+        "yAxis": y_axes if len(y_axes) > 1 else y_axes[0],
         "visualMap": {"min": lo, "max": hi, "calculable": True, "orient": "vertical",
-                      "right": 5, "top": "middle", "text": ["m/s²", ""],
+                      "right": 5, "top": "middle", "text": [value_unit, ""], "seriesIndex": 0,
                       "inRange": {"color": ["#313695", "#74add1", "#ffffbf", "#f46d43",
                                             "#a50026"]}},
-        "series": [{"type": "heatmap", "data": data, "name": value_name,
-                    "progressive": 0, "animation": False}],
+        "series": series,
     }
+
+
+def _region_areas(regions: Sequence[dict[str, Any]], x_edges: np.ndarray,
+                  y_edges: np.ndarray) -> list[list[dict[str, Any]]]:
+    """markArea pairs (bin-index corners) outlining each region, each in its own colour."""
+    areas = []
+    for k, reg in enumerate(regions):
+        box = region_box(reg)
+        if box is None:
+            continue
+        (r0, r1), (v0, v1) = box
+        colour = REGION_COLOURS[k % len(REGION_COLOURS)]
+        areas.append([
+            {"name": str(reg.get("name", "")),
+             "coord": [round(bin_position(min(r0, r1), x_edges), 4),
+                       round(bin_position(min(v0, v1), y_edges), 4)],
+             "itemStyle": {"color": "rgba(0, 0, 0, 0)", "borderColor": colour,
+                           "borderWidth": 3, "borderType": "dashed" if k else "solid"},
+             "label": {"show": True, "position": "insideTop", "color": colour,
+                       "fontWeight": "bold", "backgroundColor": "rgba(255, 255, 255, 0.8)",
+                       "padding": [1, 3]}},
+            {"coord": [round(bin_position(max(r0, r1), x_edges), 4),
+                       round(bin_position(max(v0, v1), y_edges), 4)]},
+        ])
+    return areas

@@ -10,9 +10,9 @@ is enough to keep the dashboard fluid; nothing here computes anything itself.
 from __future__ import annotations
 
 import inspect
+import logging
 import threading
 import time
-import traceback
 import uuid
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
@@ -22,6 +22,8 @@ from typing import Any
 from fielddiag.errors import FieldDiagError
 
 __all__ = ["Job", "JobRunner", "Progress"]
+
+log = logging.getLogger("fielddiag.web")
 
 
 @dataclass
@@ -121,10 +123,10 @@ class JobRunner:
             except FieldDiagError as exc:
                 job.error = str(exc)
                 job.state = "failed"
-            except Exception as exc:  # shown to the person, with the type for a bug report
+            except Exception as exc:  # a bug: shown with its type, logged with the traceback
                 job.error = f"{type(exc).__name__}: {exc}"
                 job.state = "failed"
-                traceback.print_exc()
+                log.error("%s failed", title, exc_info=exc)
             finally:
                 job.finished_unix_s = time.time()
 

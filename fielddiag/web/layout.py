@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+import logging
 from urllib.parse import quote
 
 from nicegui import ui
 
 from fielddiag import __version__
+from fielddiag.errors import FieldDiagError
+
+log = logging.getLogger("fielddiag.web")
 
 NAV = (
     ("/", "Sessions", "folder_open"),
@@ -63,6 +67,22 @@ def file_link(path: str) -> str:
 def notify_error(message: str) -> None:
     """A readable error notification that stays until dismissed."""
     ui.notify(message, type="negative", close_button="OK", timeout=0, multi_line=True)
+
+
+def notify_exception(what: str, exc: BaseException) -> str:
+    """Say readably that ``what`` failed, and return the text shown.
+
+    A :class:`FieldDiagError` is a problem with the data or a choice: its message says it
+    all. Anything else is a bug: shown with its type, and logged with its traceback on
+    the server for the bug report.
+    """
+    if isinstance(exc, FieldDiagError):
+        text = f"{what}: {exc}"
+    else:
+        log.error("%s", what, exc_info=exc)
+        text = f"{what}: {type(exc).__name__}: {exc}"
+    notify_error(text)
+    return text
 
 
 def fmt_duration(seconds: float) -> str:

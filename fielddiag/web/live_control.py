@@ -67,7 +67,17 @@ class LiveOptions:
     n_channels : int
         Channels of the virtual DAQ (wheel, body, then noise channels).
     seed : int
-        Seeds the virtual drive.
+        Seeds the virtual drive and its faults.
+    corrupt_rate : float
+        Virtual DAQ fault: probability that any byte it sends is altered (the serial
+        driver counts a CRC error and loses the frame). 0 for a clean link.
+    garbage_every_s : float or None
+        Virtual DAQ fault: a burst of random bytes between frames this often.
+    stall_at_s, stall_for_s : float or None, float
+        Virtual DAQ fault: it stops sending this long after the start, for this long;
+        frames pile up in its transmit buffer and those that do not fit are dropped.
+    tx_buffer_bytes : int
+        The virtual DAQ's transmit buffer (small: a stall drops frames sooner).
     """
 
     path: Path
@@ -77,6 +87,29 @@ class LiveOptions:
     sample_rate_hz: float = 500.0
     n_channels: int = 2
     seed: int = 0
+    corrupt_rate: float = 0.0
+    garbage_every_s: float | None = None
+    stall_at_s: float | None = None
+    stall_for_s: float = 1.0
+    tx_buffer_bytes: int = 65536
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.corrupt_rate < 0.1:
+            raise DeviceError("the byte corruption rate must be at least 0 and below 0.1, "
+                              f"not {self.corrupt_rate:g}")
+        for name in ("garbage_every_s", "stall_at_s"):
+            v = getattr(self, name)
+            if v is not None and not v > 0:
+                raise DeviceError(f"{name} must be positive (or empty for none), not {v:g}")
+        if not self.stall_for_s > 0 or self.tx_buffer_bytes < 1024:
+            raise DeviceError("the stall must last more than 0 s and the transmit buffer "
+                              "hold at least 1024 bytes")
+
+    def daq_faults(self) -> dict[str, Any]:
+        """The fault keywords of :class:`drivers.virtual.VirtualDAQ`."""
+        return {"corrupt_rate": self.corrupt_rate, "garbage_every_s": self.garbage_every_s,
+                "stall_at_s": self.stall_at_s, "stall_for_s": self.stall_for_s,
+                "tx_buffer_bytes": self.tx_buffer_bytes}
 
 
 class LiveRecording:
@@ -115,7 +148,7 @@ class LiveRecording:
                     seed=o.seed,
                 )
                 self._vdaq = VirtualDAQ(signals, sample_rate_hz=o.sample_rate_hz, loop=True,
-                                        seed=o.seed,
+                                        seed=o.seed, **o.daq_faults(),
                                         link_name=f"ttyVDAQ{uuid.uuid4().hex[:6]}").start()
                 sources.append(SerialDAQSource.from_url(f"serial://{self._vdaq.path}"))
             elif o.daq and o.daq != NONE:

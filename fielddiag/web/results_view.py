@@ -8,15 +8,29 @@ keeps working while the result classes evolve), and says plainly what a result l
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Iterable, Mapping
 from typing import Any
 
 import numpy as np
 from nicegui import ui
 
-from fielddiag.web.charts import heatmap_options, spectrum_options, surface_options, xy_options
+from fielddiag.web.charts import (
+    heatmap_options,
+    region_box,
+    spectrum_options,
+    surface_options,
+    xy_options,
+)
 
-__all__ = ["find", "parameter_rows", "render_diagnosis", "render_identification"]
+__all__ = [
+    "find",
+    "mismatch_location",
+    "mismatch_regions",
+    "parameter_rows",
+    "render_diagnosis",
+    "render_identification",
+]
 
 #: Headline estimates of an identification result (``{"value", "std"}`` at top level).
 KNOWN_ESTIMATES = {
@@ -27,6 +41,13 @@ KNOWN_ESTIMATES = {
     "body_natural_frequency_hz": ("body natural frequency", "Hz"),
     "damping_ratio": ("damping ratio", ""),
 }
+
+
+#: Colours of the simulations drawn over a recording.
+FIT_COLOURS = {"linear model": "#d62728", "with findings": "#1f77b4"}
+
+#: Readable names of the residual spectrum's curves.
+PSD_LABELS = {"psd": "residual", "noise_psd": "noise floor"}
 
 
 def find(d: Any, *paths: str) -> Any:
@@ -346,15 +367,53 @@ def mismatch_location(result: Mapping[str, Any]) -> dict[str, Any]:
 def _region_text(region: Any) -> str:
     if not isinstance(region, Mapping):
         return ""
-    r, v = region.get("r_m"), region.get("rdot_mps")
-    if not (isinstance(r, list) and isinstance(v, list) and len(r) == len(v) == 2):
+    box = region_box(region)
+    if box is None:
         return ""
-    return (f"travel {1e3 * r[0]:.0f}…{1e3 * r[1]:.0f} mm, rate {1e3 * v[0]:.0f}…"
-            f"{1e3 * v[1]:.0f} mm/s")
+    (r0, r1), (v0, v1) = box
+    if "r_m" in region:
+        return f"travel {1e3 * r0:.0f}…{1e3 * r1:.0f} mm, rate {1e3 * v0:.0f}…{1e3 * v1:.0f} mm/s"
+    return f"displacement {r0:.3g}…{r1:.3g}, velocity {v0:.3g}…{v1:.3g}"  # a rig's own units
+
+
+def _finding_name(f: Mapping[str, Any]) -> str:
+    return str(find(f, "label", "name", "effect") or "finding").replace("_", " ")
+
+
+def mismatch_regions(result: Mapping[str, Any]) -> list[dict[str, Any]]:
+    """Every located (r, rdot) region of a diagnosis, once each, named by the findings
+    that point at it: ``[{"r_m": [lo, hi], "rdot_mps": [lo, hi], "name": ...}, ...]``.
+
+    The region of the result itself (``mismatch.region``/``region``) comes first; the
+    findings' ``where.region`` follow (the engine gives every finding of a model the
+    same region, an ``unexplained`` finding one of its own).
+    """
+    found: list[tuple[Any, list[str], bool]] = []  # (box, names, in a rig's own units)
+
+    def add(region: Any, name: str) -> None:
+        box = region_box(region) if isinstance(region, Mapping) else None
+        if box is None:
+            return
+        for seen_box, names, _rig in found:
+            if seen_box == box:
+                if name and name not in names:
+                    names.append(name)
+                return
+        found.append((box, [name] if name else [], "r_m" not in region))
+
+    add(find(result, "mismatch.region", "region"), "")
+    findings = result.get("findings") if isinstance(result, Mapping) else None
+    for f in findings if isinstance(findings, list) else []:
+        where = f.get("where") if isinstance(f, Mapping) else None
+        if isinstance(where, Mapping):
+            add(where.get("region"), _finding_name(f))
+    keys = {False: ("r_m", "rdot_mps"), True: ("displacement", "velocity")}
+    return [{keys[rig][0]: list(r), keys[rig][1]: list(v), "name": " + ".join(names)
+             or "mismatch"} for (r, v), names, rig in found]
 
 
 def _finding_card(f: Mapping[str, Any]) -> None:
-    name = str(find(f, "label", "name", "effect") or "finding").replace("_", " ")
+    name = _finding_name(f)
     conf = f.get("confidence")
     with ui.card().classes("w-full").mark("finding"):
         with ui.row().classes("items-center gap-2"):
@@ -400,17 +459,38 @@ def _fit_series(result: Mapping[str, Any]) -> list[dict[str, Any]]:
         rec = _arr(find(item, "recorded", "measured", "recording"))
         if t is None or rec is None or rec.size != t.size:
             continue
-        series = [{"name": "recording", "x": t, "y": rec}]
+        # the recording wide and pale underneath, the models thin on top of it
+        series = [{"name": "recording", "x": t, "y": rec, "color": "#7f7f7f", "width": 4,
+                   "opacity": 0.55}]
         for key, label in (("simulated_before", "linear model"),
                            ("simulated_linear", "linear model"),
                            ("simulated_after", "with findings"),
                            ("simulated_augmented", "with findings")):
             y = _arr(item.get(key))
             if y is not None and y.size == t.size and label not in [x["name"] for x in series]:
-                series.append({"name": label, "x": t, "y": y, "dashed": True})
+                series.append({"name": label, "x": t, "y": y, "width": 1.3,
+                               "color": FIT_COLOURS[label], "dashed": label == "with findings"})
         out.append({"session": str(item.get("session", item.get("label", ""))),
                     "series": series})
     return out
+
+
+def _fit_title(session: str, shaded: bool) -> str:
+    """``before[28.0-40.0 s]`` -> 'Simulation against recording: before, held out
+    28.0–40.0 s' (and what the shading means)."""
+    m = re.fullmatch(r"(.*)\[([-\d.]+)-([-\d.]+) s\]", session)
+    where = f"{m.group(1)}, held out {m.group(2)}–{m.group(3)} s" if m else session
+    return ("Simulation against recording" + (f": {where}" if where else "")
+            + (" (shaded: where the linear model misses)" if shaded else ""))
+
+
+def _same_drive(window_session: Any, fit_session: str) -> bool:
+    """Does a time window (labelled by drive: ``before``) belong to a fit series (labelled
+    by drive and span: ``before[28.0-40.0 s]``)? A window without a label belongs to all."""
+    if window_session in (None, ""):
+        return True
+    label = str(window_session)
+    return fit_session == label or fit_session.startswith(label + "[")
 
 
 def render_diagnosis(result: Mapping[str, Any], recording_view=None) -> None:
@@ -466,11 +546,11 @@ def render_diagnosis(result: Mapping[str, Any], recording_view=None) -> None:
     fits = _fit_series(result)
     for fs in fits:
         wins = [(float(w["start_s"]), float(w["end_s"])) for w in where["windows"]
-                if isinstance(w, Mapping) and w.get("session", fs["session"]) == fs["session"]]
+                if isinstance(w, Mapping) and _same_drive(w.get("session"), fs["session"])]
         ui.echart(xy_options(fs["series"], x_name="time [s]",
-                             y_name="body acceleration [m/s2]",
-                             title=f"Simulation against recording {fs['session']}".strip(),
-                             mark_x_windows=wins)).classes("w-full h-96").classes(
+                             y_name="body acceleration [m/s²]",
+                             title=_fit_title(fs["session"], bool(wins)),
+                             mark_x_windows=wins, zoom=True)).classes("w-full h-96").classes(
             "fd-fit-chart").mark("fit-chart")
     if not fits and recording_view is not None and where["windows"]:
         recording_view(where["windows"])
@@ -479,28 +559,36 @@ def render_diagnosis(result: Mapping[str, Any], recording_view=None) -> None:
     f_hz = _arr(find(spec, "freq_hz"))
     band = where["band_hz"]
     if f_hz is not None:
-        curves = {k: _arr(v) for k, v in spec.items() if k != "freq_hz"}
+        curves = {PSD_LABELS.get(k, k): _arr(v) for k, v in spec.items() if k != "freq_hz"}
         curves = {k: v for k, v in curves.items() if v is not None and v.size == f_hz.size}
         if curves:
-            ui.echart(spectrum_options(f_hz, curves, title="Residual spectrum",
-                                       band_hz=tuple(band) if band else None)).classes(
-                "w-full h-96").classes("fd-band-chart").mark("band-chart")
+            ui.echart(spectrum_options(
+                f_hz, curves, band_hz=tuple(band) if band else None,
+                band_label="exceeds the noise", y_name="PSD [(m/s²)²/Hz]",
+                title="Residual spectrum of the linear model (body acceleration)",
+            )).classes("w-full h-96").classes("fd-band-chart").mark("band-chart")
     elif band:
         ui.label(f"The residual stands out of the noise in {band[0]:.2g}–{band[1]:.2g} Hz "
                  "(this result holds no spectrum to draw)").classes("text-sm")
     dmap = find(result, "departure_map", "departure")
-    region = where["region"]
+    regions = mismatch_regions(result)
     if isinstance(dmap, Mapping) and _arr(dmap.get("r_edges_m")) is not None:
         re_, ve = _arr(dmap["r_edges_m"]), _arr(dmap["rdot_edges_mps"])
         ui.echart(heatmap_options(0.5 * (re_[1:] + re_[:-1]), 0.5 * (ve[1:] + ve[:-1]),
                                   dmap.get("mean") or [],
-                                  title="Force the model misses over (r, rdot)"
-                                  + (f" — region {_region_text(region)}" if region else ""),
-                                  value_name="departure")).classes("w-full h-96").classes(
-            "fd-region-chart").mark("region-chart")
-    elif region:
-        ui.label(f"Region of the restoring-force map where the mismatch lives: "
-                 f"{_region_text(region)}").classes("text-sm").mark("region-text")
+                                  title="Force the linear model misses over (r, rdot)",
+                                  value_name="departure", region=regions,
+                                  value_unit="N" if result.get("mode") == "pair" else "N/kg",
+                                  x_edges=re_, y_edges=ve)).classes(
+            "w-full h-[480px]").classes("fd-region-chart").mark("region-chart")
+        if regions:
+            ui.label("Outlined, where the mismatch lives: " + "; ".join(
+                f"{g['name']}: {_region_text(g)}" for g in regions)).classes(
+                "text-sm").mark("region-text")
+    elif regions:
+        ui.label("Region of the restoring-force map where the mismatch lives: " + "; ".join(
+            f"{g['name']}: {_region_text(g)}" for g in regions)).classes("text-sm").mark(
+            "region-text")
     sf = _surface(result)
     if sf is not None:
         regions = find(result, "mismatch.regions", "regions")

@@ -5,7 +5,8 @@
 * ``dashboard_user``: nicegui's simulated :class:`~nicegui.testing.User`, connected to the
   dashboard app set up by :func:`fielddiag.web.app.setup_app` (pages, middleware, routes),
   in nicegui's isolated test context (``nicegui_reset_globals``). Async tests run on
-  anyio's pytest plugin (``@pytest.mark.anyio``).
+  anyio's pytest plugin (``@pytest.mark.anyio``). Like nicegui's ``user`` fixture, it
+  fails a test that logged an ERROR record (a handler or timer that raised).
 * ``live_server``: ``fielddiag serve`` started as a real subprocess on a free port.
 * ``browser``: headless Chromium through Selenium (Debian's chromium + chromium-driver);
   the tests that need it are skipped when it is missing.
@@ -24,6 +25,7 @@ from web_helpers import (
     LiveServer,
     chromium_available,
     dashboard_user_for,
+    fail_on_error_records,
     make_pair,
 )
 
@@ -49,17 +51,23 @@ def anyio_backend() -> str:
 
 
 @pytest.fixture
-def dashboard_user_factory():
-    """``dashboard_user_for``: an async context manager giving a User for any config."""
-    return dashboard_user_for
+def dashboard_user_factory(caplog: pytest.LogCaptureFixture) -> Iterator:
+    """``dashboard_user_for``: an async context manager giving a User for any config; the
+    test fails on ERROR log records."""
+    yield dashboard_user_for
+    fail_on_error_records(caplog)
 
 
 @pytest.fixture
-async def dashboard_user(sessions_root: Path) -> AsyncIterator:
+async def dashboard_user(sessions_root: Path, caplog: pytest.LogCaptureFixture
+                         ) -> AsyncIterator:
+    """nicegui's User on the dashboard of ``sessions_root``; the test fails on ERROR log
+    records (as with nicegui's own ``user`` fixture)."""
     from fielddiag.web.app import DashboardConfig
 
     async with dashboard_user_for(DashboardConfig(root=sessions_root)) as user:
         yield user
+    fail_on_error_records(caplog)
 
 
 @pytest.fixture

@@ -12,7 +12,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from web_helpers import SCREENSHOT_DIR, friction_session
+from selenium.webdriver.common.action_chains import ActionChains
+from web_helpers import FRICTION_BUMP_AT_S, SCREENSHOT_DIR, friction_session, short_session
 
 from fielddiag.catalog import result_path
 from fielddiag.web.services import diagnosis_backend, recorder_backend
@@ -28,6 +29,18 @@ return o.series.map(s => [s.name, (s.data || []).length,
                           (s.data && s.data.length) ? s.data[s.data.length - 1][0] : null]);
 """
 
+#: Per series of the chart ``arguments[0]`` (a CSS selector): its name, number of points
+#: and the areas it shades (markArea pairs), as the browser's ECharts instance holds them.
+CHART_AREAS_JS = """
+const el = document.querySelector(arguments[0]);
+if (!el) return null;
+const comp = getElement(el.id.slice(1));
+if (!comp || !comp.chart) return null;
+const o = comp.chart.getOption();
+if (!o || !o.series) return null;
+return o.series.map(s => ({name: s.name, n: (s.data || []).length,
+                           areas: (s.markArea && s.markArea.data) || []}));
+"""
 
 _current_driver: list = []
 
@@ -45,7 +58,8 @@ def wait_until(fn: Callable[[], Any], timeout_s: float = 20.0, what: str = "") -
                 return last
         time.sleep(0.05)
     if _current_driver:
-        shot(_current_driver[0], f"failed-{what or 'wait'}".replace(" ", "-").replace("/", "-"))
+        shot(_current_driver[0], f"failed-{what or 'wait'}".replace(" ", "-").replace("/", "-"),
+             toasts=True)
     raise AssertionError(f"timed out waiting for {what or fn}: last {last!r}")
 
 
@@ -61,9 +75,23 @@ def click_text(driver, text: str, tag: str = "*", exact: bool = True) -> None:
     el.click()
 
 
-def shot(driver, name: str) -> Path:
+_TOASTS_JS = """document.querySelectorAll('.q-notifications__list').forEach(
+    el => { el.style.visibility = arguments[0]; });"""
+
+
+def shot(driver, name: str, toasts: bool = False) -> Path:
+    """Save a screenshot as tests/screenshots/<name>.png, by default without the toasts
+    (a passing "done" notification would cover the plots a person reviews)."""
     path = SCREENSHOT_DIR / f"{name}.png"
+    # the pointer off the button just clicked (a hovered or focused button looks disabled)
+    driver.execute_script("document.activeElement && document.activeElement.blur();")
+    for header in driver.find_elements("tag name", "header")[:1]:
+        ActionChains(driver).move_to_element(header).perform()
+    if not toasts:
+        driver.execute_script(_TOASTS_JS, "hidden")
     driver.save_screenshot(str(path))
+    if not toasts:
+        driver.execute_script(_TOASTS_JS, "")
     return path
 
 
@@ -74,6 +102,34 @@ def js_errors(driver) -> list[dict]:
 
 def chart_series(driver, selector: str):
     return driver.execute_script(CHART_JS, selector)
+
+
+def chart_areas(driver, selector: str) -> list[dict] | None:
+    return driver.execute_script(CHART_AREAS_JS, selector)
+
+
+def shot_of(driver, selector: str, name: str) -> Path:
+    """A screenshot with the element ``selector`` scrolled to the middle of the window."""
+    el = driver.find_element("css selector", selector)
+    driver.execute_script("arguments[0].scrollIntoView({block: 'center'});", el)
+    time.sleep(0.3)  # let the chart resize and draw after the scroll
+    return shot(driver, name)
+
+
+def column_values(driver, header: str) -> list[str]:
+    """The texts of the column ``header`` of the (only) table on the page, top to bottom."""
+    heads = [h.text.replace("arrow_upward", "").strip()  # the sort icon's ligature
+             for h in driver.find_elements("css selector", "thead th")]
+    i = heads.index(header)
+    return [row.find_elements("tag name", "td")[i].text
+            for row in driver.find_elements("css selector", "tbody tr")]
+
+
+def seconds(duration: str) -> float:
+    """``'40.0 s'`` (how the sessions page writes a short duration) -> 40.0."""
+    value, unit = duration.split()
+    assert unit == "s", duration
+    return float(value)
 
 
 @pytest.fixture
@@ -92,12 +148,23 @@ def test_sessions_to_session_to_identification_to_diagnosis(page, live_server,
                                                              sessions_root: Path) -> None:
     d = page
     d.set_window_size(1400, 1000)
+    friction_session(sessions_root / "car-b")  # a strut with dry friction, for the diagnosis
+    for duration_s in (20.0, 10.0):  # durations to sort by
+        short_session(sessions_root / "car-c", duration_s)
     d.get(live_server.url + "/")
-    wait_until(lambda: "2 of 2 sessions" in text_of(d), what="session list")
+    wait_until(lambda: "5 of 5 sessions" in text_of(d), what="session list")
     body = text_of(d)
     assert "car-a/before.h5" in body and "car-a/after.h5" in body and "test car" in body
-    # sort by duration: a Quasar client-side sort on the column header
+    assert column_values(d, "Session")[:2] == ["car-a/after.h5", "car-a/before.h5"]
+    # sort by duration: a Quasar client-side sort on the column header, up then down
     click_text(d, "Duration", "th", exact=False)
+    wait_until(lambda: column_values(d, "Duration")[0] == "10.0 s", what="sorted up")
+    up = [seconds(v) for v in column_values(d, "Duration")]
+    assert up == [10.0, 20.0, 40.0, 40.0, 40.0]
+    assert column_values(d, "Session")[:2] == ["car-c/short-10s.h5", "car-c/short-20s.h5"]
+    click_text(d, "Duration", "th", exact=False)
+    wait_until(lambda: column_values(d, "Duration")[0] == "40.0 s", what="sorted down")
+    assert [seconds(v) for v in column_values(d, "Duration")] == up[::-1]
     shot(d, "01-sessions")
 
     # to a session: the overview of every channel and the CAN speed
@@ -134,19 +201,22 @@ def test_sessions_to_session_to_identification_to_diagnosis(page, live_server,
     assert [n for n, _, _ in tr][:4] == ["before", "before model", "after", "after model"]
     assert all(n > 10 for _, n, _ in tr)
     shot(d, "04-identification")
-    surface = d.find_element("css selector", ".fd-surface-chart")
-    d.execute_script("arguments[0].scrollIntoView({block: 'center'});", surface)
-    time.sleep(0.3)
-    shot(d, "04b-identification-surfaces")
+    shot_of(d, ".fd-surface-chart", "04b-identification-surfaces")
 
-    # diagnosis of a drive whose strut has dry friction, run from the page
+    # diagnosis, reached through the pages: the list, the friction drive, its Diagnose button
     if not diagnosis_backend().available:
         click_text(d, "Diagnosis", "div")
         wait_until(lambda: "Diagnosis: not available yet" in text_of(d), what="panel")
         shot(d, "05-diagnosis")
         pytest.skip(diagnosis_backend().reason)
-    friction_session(sessions_root / "car-b")
-    d.get(live_server.url + "/diagnose?session=car-b%2Ffriction.h5")
+    click_text(d, "Sessions", "div")
+    wait_until(lambda: "5 of 5 sessions" in text_of(d), what="session list again")
+    assert "identify" in column_values(d, "Processed")[column_values(d, "Session").index(
+        "car-a/before.h5")]
+    shot(d, "04c-sessions-processed")
+    click_text(d, "car-b/friction.h5", "a")
+    wait_until(lambda: chart_series(d, ".fd-session-chart"), what="friction session")
+    click_text(d, "Diagnose", "button", exact=False)
     wait_until(lambda: "car-b/friction.h5 has not been diagnosed yet" in text_of(d),
                what="diagnosis page")
     click_text(d, "Run diagnosis", "button", exact=False)
@@ -155,13 +225,33 @@ def test_sessions_to_session_to_identification_to_diagnosis(page, live_server,
     assert "coulomb friction" in body and "dry friction" in body
     stored = json.loads(result_path(sessions_root / "car-b" / "friction.h5",
                                     "diagnose").read_text())
+    where = stored["findings"][0]["where"]
     assert stored["findings"][0]["effect"] == "coulomb_friction"
     shot(d, "05-diagnosis")
-    if d.find_elements("css selector", ".fd-windows-chart"):
-        el = d.find_element("css selector", ".fd-windows-chart")
-        d.execute_script("arguments[0].scrollIntoView({block: 'center'});", el)
-        time.sleep(0.3)
-        shot(d, "05b-diagnosis-windows")
+
+    # the fit: recording, linear model and with the findings, the window of the speed bump
+    fit = wait_until(lambda: chart_areas(d, ".fd-fit-chart"), what="fit chart")
+    assert [s["name"] for s in fit] == ["recording", "linear model", "with findings"]
+    assert all(s["n"] > 100 for s in fit)
+    windows = [(a["xAxis"], b["xAxis"]) for a, b in fit[0]["areas"]]
+    assert windows == [(w["start_s"], w["end_s"]) for w in where["time_windows_s"]]
+    assert any(a < FRICTION_BUMP_AT_S < b for a, b in windows)
+    shot_of(d, ".fd-fit-chart", "05b-diagnosis-fit")
+    # the residual spectrum with its band
+    band = chart_areas(d, ".fd-band-chart")
+    assert [s["name"] for s in band] == ["residual", "noise floor"]
+    assert [(a["xAxis"], b["xAxis"]) for a, b in band[0]["areas"]] == [tuple(where["band_hz"])]
+    shot_of(d, ".fd-band-chart", "05c-diagnosis-band")
+    # the departure map with the region outlined
+    region = chart_areas(d, ".fd-region-chart")
+    outlined = [s for s in region if s["areas"]]
+    assert [s["name"] for s in outlined] == ["mismatch region"]
+    ((lo, hi),) = outlined[0]["areas"]
+    assert lo["name"] == "coulomb friction"
+    assert -0.5 <= lo["coord"][0] < hi["coord"][0] <= 11.5
+    assert -0.5 <= lo["coord"][1] < hi["coord"][1] <= 11.5
+    assert "Outlined, where the mismatch lives: coulomb friction: travel" in text_of(d)
+    shot_of(d, ".fd-region-chart", "05d-diagnosis-region")
     errors = js_errors(d)
     assert errors == [], errors
 
@@ -169,7 +259,7 @@ def test_sessions_to_session_to_identification_to_diagnosis(page, live_server,
 @pytest.mark.skipif(not recorder_backend().available, reason=recorder_backend().reason)
 def test_live_recording_in_the_browser(page, live_server, sessions_root: Path) -> None:
     d = page
-    d.set_window_size(1400, 1100)
+    d.set_window_size(1400, 1200)  # the whole live chart in the screenshot
     d.get(live_server.url + "/live")
     click_text(d, "Start", "button", exact=False)
     wait_until(lambda: (s := chart_series(d, ".fd-live-chart")) and len(s) == 3

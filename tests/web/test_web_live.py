@@ -59,11 +59,23 @@ async def test_record_live_mark_an_event_and_stop(dashboard_user, sessions_root:
     user.find(marker="mark-event").click()
     await user.should_see("event at")
     await _until(user, lambda: "speed bump @" in _the(user, "events-shown").text)
-    # the on-line estimator reports per-parameter observability with advice
+    # the on-line estimator reports per-parameter observability with advice: one row per
+    # parameter of the estimator, each with its name, its state and a bar
     await _until(user, lambda: _has(user, "observability-advice"), timeout_s=10)
     advice = _the(user, "observability-advice").text
     assert advice.startswith(("enough data", "waiting for data")) or "keep driving" in advice \
         or "not yet observable" in advice
+    estimated = user.state.live["recording"].observability()["parameters"]
+    with user:
+        rows = _elements("observability-param")
+        assert len(rows) == len(estimated) >= 2
+        for row, param in zip(rows, estimated, strict=True):
+            (name,) = _inside(row, "observability-name")
+            (state,) = _inside(row, "observability-state")
+            (bar,) = _inside(row, "observability-bar")
+            assert name.text == param["label"]
+            assert state.text in ("ok", "converging", "not observable")
+            assert 0.0 <= bar.value <= 1.0
 
     user.find(marker="live-stop").click()
     await _until(user, lambda: _has(user, "live-saved-link"), timeout_s=20)
@@ -76,6 +88,49 @@ async def test_record_live_mark_an_event_and_stop(dashboard_user, sessions_root:
         assert s.counters["frames_received"] >= 100
         assert "vehicle_speed" in [sig.name for sig in s.signals]
     assert user.state.live["recording"].running is False
+
+
+def _elements(marker: str) -> list:
+    """Elements with ``marker`` on the page, in page order (call inside ``with user:``)."""
+    from nicegui.element_filter import ElementFilter
+
+    return list(ElementFilter(marker=marker))
+
+
+def _inside(parent, marker: str) -> list:
+    from nicegui.element_filter import ElementFilter
+
+    return list(ElementFilter(marker=marker).within(instance=parent))
+
+
+async def test_virtual_daq_faults_show_in_the_counters(dashboard_user) -> None:
+    """A corrupting serial link: the CRC-error and frames-lost counters go above 0."""
+    user = dashboard_user
+    await user.open("/live")
+    _the(user, "live-path").set_value("recordings/faulty.h5")
+    _the(user, "can-source").set_value("none")
+    _the(user, "fault-corrupt-rate").set_value(0.002)  # ~10 % of the ~56-byte frames
+    user.find(marker="live-start").click()
+    crc = _the(user, "counter-crc_errors")
+    lost = _the(user, "counter-frames_lost")
+
+    def counted(label) -> int:
+        return int(label.text) if label.text.isdigit() else 0
+
+    await _until(user, lambda: counted(crc) >= 3 and counted(lost) >= 3, timeout_s=15)
+    st = user.state.live["recording"].status()
+    assert st["crc_errors"] >= counted(crc) and st["frames_lost"] >= counted(lost)
+    user.find(marker="live-stop").click()
+    await _until(user, lambda: _has(user, "live-saved-link"), timeout_s=20)
+
+
+async def test_live_page_refuses_bad_fault_settings(dashboard_user) -> None:
+    user = dashboard_user
+    await user.open("/live")
+    _the(user, "fault-corrupt-rate").set_value(0.5)
+    user.find(marker="live-start").click()
+    await user.should_see("byte corruption rate must be at least 0 and below 0.1")
+    assert "recording" not in user.state.live
 
 
 def _has(user, marker: str) -> bool:

@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 from nicegui import ui
-from web_helpers import friction_session
+from nicegui.element_filter import ElementFilter
+from web_helpers import FRICTION_BUMP_AT_S, error_records, friction_session, make_pair
 
 from fielddiag.catalog import result_path
 from fielddiag.channels import ChannelSpec, Event, Gap, SessionMetadata
@@ -316,6 +317,32 @@ async def test_diagnose_page_runs_the_diagnosis(dashboard_user, sessions_root: P
     rows = {r["k"]: r for r in _the(user, "fit-metrics").rows}
     assert float(rows["with the findings"]["val"]) < float(rows["linear model"]["val"])
     await user.should_see("diagnosis done")
+    assert_diagnosis_plots(user, stored)
+
+
+def assert_diagnosis_plots(user, stored: dict) -> None:
+    """The fit, band and region charts of a diagnosis show what the stored result says."""
+    where = stored["findings"][0]["where"]
+    # simulation against recording: the three series, the window around the speed bump
+    fit = _the(user, "fit-chart").options
+    assert [s["name"] for s in fit["series"]] == ["recording", "linear model", "with findings"]
+    assert all(len(s["data"]) > 100 for s in fit["series"])
+    windows = [(a["xAxis"], b["xAxis"]) for a, b in fit["series"][0]["markArea"]["data"]]
+    assert windows == [(w["start_s"], w["end_s"]) for w in where["time_windows_s"]]
+    assert any(a < FRICTION_BUMP_AT_S < b for a, b in windows)
+    # the residual spectrum with the band where it exceeds the noise
+    band = _the(user, "band-chart").options["series"][0]["markArea"]["data"]
+    assert [(a["xAxis"], b["xAxis"]) for a, b in band] == [tuple(where["band_hz"])]
+    # the departure map with the region outlined, in bin indices of its 12 x 12 grid
+    region_chart = _the(user, "region-chart").options
+    (outline,) = [s for s in region_chart["series"] if s.get("markArea")]
+    ((lo, hi),) = outline["markArea"]["data"]
+    edges = np.array(stored["departure_map"]["r_edges_m"])
+    r0, r1 = where["region"]["r_m"]
+    assert lo["coord"][0] == pytest.approx(np.interp(r0, edges, np.arange(13)) - 0.5, abs=1e-3)
+    assert hi["coord"][0] == pytest.approx(np.interp(r1, edges, np.arange(13)) - 0.5, abs=1e-3)
+    assert -0.5 <= lo["coord"][1] < hi["coord"][1] <= 11.5
+    assert lo["name"] == "coulomb friction"
 
 
 async def test_diagnose_page_shows_a_stored_result(dashboard_user, sessions_root: Path) -> None:
@@ -417,3 +444,101 @@ async def test_csv_upload_errors_are_readable(dashboard_user) -> None:
     await user.should_see(marker="csv-import")
     user.find(marker="csv-import").click()
     await user.should_see("row 3", retries=100)
+
+
+async def test_a_failed_identification_is_a_readable_notification(
+    dashboard_user, sessions_root: Path, caplog: pytest.LogCaptureFixture, monkeypatch
+) -> None:
+    """A pair too short to identify: the pipeline's own message; then a bug in the
+    pipeline: its type and message (and its traceback in the server's log). Either way
+    the run button is usable again."""
+    from fielddiag.web.pages import identify
+    from fielddiag.web.services import Backend, identification_backend
+
+    if not identification_backend().available:
+        pytest.skip(identification_backend().reason)
+    make_pair(sessions_root / "short", duration_s=5.0)
+    user = dashboard_user
+    await user.open("/identify?before=short%2Fbefore.h5&after=short%2Fafter.h5")
+    mass = _the(user, "added-mass")
+    await _wait_for(user, lambda: mass.value == pytest.approx(60.0))
+    user.find(marker="run-identify").click()
+    await user.should_see("Identification failed: before", retries=200)
+    await user.should_see("lasts only 5.0 s; at least 30 s are needed")
+    run_button = _the(user, "run-identify")
+    assert run_button.enabled
+    with user:
+        (bar,) = ElementFilter(marker="identify-progress")
+        assert not bar.visible
+    assert not result_path(sessions_root / "short" / "before.h5", "identify").exists()
+    assert error_records(caplog) == []  # a data problem is no bug: nothing logged
+
+    def broken(before, after, *, added_mass_kg, progress=None):
+        raise RuntimeError("the pipeline fell over")
+
+    monkeypatch.setattr(identify, "identification_backend",
+                        lambda: Backend("identify", target=broken))
+    await user.open("/identify?before=car-a%2Fbefore.h5&after=car-a%2Fafter.h5")
+    mass = _the(user, "added-mass")
+    await _wait_for(user, lambda: mass.value == pytest.approx(60.0))
+    user.find(marker="run-identify").click()
+    await user.should_see("Identification failed: RuntimeError: the pipeline fell over",
+                          retries=200)
+    assert _the(user, "run-identify").enabled
+    (logged,) = error_records(caplog)
+    assert logged.exc_info[0] is RuntimeError  # the traceback is in the server's log
+    caplog.clear()  # expected: the fixture fails a test on ERROR records
+
+
+async def test_an_unreadable_session_is_a_readable_notification(
+    dashboard_user, caplog: pytest.LogCaptureFixture
+) -> None:
+    user = dashboard_user
+
+    def vanished(path):
+        raise OSError(f"{path.name}: input/output error")
+
+    user.state.plots.get = vanished
+    await user.open("/session?path=car-a%2Fbefore.h5")
+    await user.should_see("Cannot read car-a/before.h5: OSError: before.h5: input/output error",
+                          retries=60)
+    await _wait_for(user, lambda: _the(user, "plot-status").text.startswith("Cannot read"))
+    (logged,) = error_records(caplog)
+    assert logged.exc_info[0] is OSError
+    caplog.clear()
+
+
+def test_every_located_region_is_outlined_on_the_map() -> None:
+    """Regions in m and m/s become bin-index ranges of the departure map: whole cells when
+    they sit on the bin edges, fractions of a cell otherwise, clipped to the map."""
+    from fielddiag.web.charts import heatmap_options
+    from fielddiag.web.results_view import mismatch_regions
+
+    r_edges = np.linspace(-0.012, 0.012, 13)  # 2 mm bins
+    v_edges = np.linspace(-0.3, 0.3, 13)  # 50 mm/s bins
+    same = {"r_m": [r_edges[3], r_edges[7]], "rdot_mps": [v_edges[0], v_edges[6]]}
+    result = {"findings": [
+        {"effect": "coulomb_friction", "where": {"region": same}},
+        {"effect": "bump_stop", "where": {"region": dict(same)}},
+        {"effect": "unexplained", "where": {"region": {"r_m": [-0.011, 0.5],
+                                                        "rdot_mps": [-0.3, -0.275]}}},
+        {"effect": "asymmetric_damping", "where": {"region": None}},
+    ]}
+    regions = mismatch_regions(result)
+    assert [g["name"] for g in regions] == ["coulomb friction + bump stop", "unexplained"]
+    centres = 0.5 * (r_edges[1:] + r_edges[:-1]), 0.5 * (v_edges[1:] + v_edges[:-1])
+    opts = heatmap_options(*centres, [[0.1] * 12] * 12, title="", region=regions,
+                           x_edges=r_edges, y_edges=v_edges)
+    (outline,) = [s for s in opts["series"] if "markArea" in s]
+    assert outline["markArea"]["z"] > opts["series"][0].get("z", 2)  # above the cells
+    boxes = [(a["coord"], b["coord"], a["name"]) for a, b in outline["markArea"]["data"]]
+    assert boxes[0] == ([2.5, -0.5], [6.5, 5.5], "coulomb friction + bump stop")
+    assert boxes[1][0] == pytest.approx([0.0, -0.5]) and boxes[1][1] == pytest.approx([11.5, 0.0])
+    # the hidden value axes put bin i at i, so a box edge at i - 0.5 is a cell's edge
+    assert opts["xAxis"][1] == {"type": "value", "min": -0.5, "max": 11.5, "show": False}
+    assert opts["visualMap"]["seriesIndex"] == 0
+    # a rig's regions keep their own units (no mm)
+    rig = mismatch_regions({"findings": [{"effect": "cubic_stiffness", "where": {
+        "region": {"displacement": [-1.0, 2.0], "velocity": [0.0, 3.0]}}}]})
+    assert rig == [{"displacement": [-1.0, 2.0], "velocity": [0.0, 3.0],
+                    "name": "cubic stiffness"}]

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import ipaddress
 import re
 import socket
 import subprocess
 import sys
 from pathlib import Path
+from urllib.parse import urlsplit
 
 import httpx
 import pytest
@@ -16,6 +18,7 @@ from starlette.responses import PlainTextResponse
 from starlette.routing import Route, WebSocketRoute
 from web_helpers import LiveServer
 
+from fielddiag.web.app import machine_address
 from fielddiag.web.security import SecurityMiddleware, cookie_name, is_loopback, new_token
 
 TOKEN = "s3cret-token-for-tests"
@@ -135,6 +138,10 @@ def test_server_off_localhost_requires_the_printed_token(sessions_root: Path) ->
         assert m, out
         assert "access token required" in out
         token = m.group(2)
+        # an address another machine can open, and the local one beside it
+        assert urlsplit(m.group(1)).hostname == machine_address() not in ("0.0.0.0",
+                                                                           "127.0.0.1")
+        assert f"on this computer: http://127.0.0.1:{server.port}/?token={token}" in out
         with httpx.Client(base_url=server.url, timeout=10) as c:
             assert c.get("/").status_code == 401
             assert c.get("/files/car-a/before.h5").status_code == 401
@@ -150,6 +157,43 @@ def test_server_off_localhost_requires_the_printed_token(sessions_root: Path) ->
             assert _ws_handshake(server.port, cookie).split(" ")[1] == "101"
     finally:
         server.stop()
+
+
+def test_address_of_a_wildcard_host_is_the_machines(tmp_path: Path, monkeypatch) -> None:
+    from fielddiag.web import app
+
+    for host in ("0.0.0.0", "::"):
+        config = app.DashboardConfig(root=tmp_path, host=host, port=8123)
+        url = app.address(config)
+        shown = urlsplit(url).hostname
+        assert shown == app.machine_address()
+        assert url == f"http://{shown}:8123/?token={config.token}"
+        try:
+            assert not ipaddress.ip_address(shown).is_loopback
+        except ValueError:  # no network: the host name, which resolves to no address
+            assert shown == socket.gethostname()
+    # a host given is shown as given; IPv6 in brackets
+    assert app.address(app.DashboardConfig(root=tmp_path, host="192.168.1.20", port=80,
+                                           token="t")) == "http://192.168.1.20:80/?token=t"
+    assert app.address(app.DashboardConfig(root=tmp_path, host="fe80::1", port=80,
+                                           token="t")) == "http://[fe80::1]:80/?token=t"
+    assert app.address(app.DashboardConfig(root=tmp_path, port=80)) == "http://127.0.0.1:80/"
+
+    # no route out and a host name that resolves to loopback (Debian's 127.0.1.1): the name
+    class NoRoute:
+        def __init__(self, *args) -> None:
+            pass
+
+        def __enter__(self):
+            raise OSError("network is unreachable")
+
+        def __exit__(self, *exc) -> None:
+            pass
+
+    monkeypatch.setattr(app.socket, "socket", NoRoute)
+    monkeypatch.setattr(app.socket, "gethostname", lambda: "fieldlaptop")
+    monkeypatch.setattr(app.socket, "gethostbyname", lambda name: "127.0.1.1")
+    assert app.machine_address() == "fieldlaptop"
 
 
 def test_given_token_is_honoured_on_localhost_too(sessions_root: Path) -> None:

@@ -4,6 +4,7 @@ tests/web/ have a conftest.py, so tests import these from here, not from ``conft
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
 import shutil
 import socket
@@ -49,21 +50,64 @@ def make_pair(folder: Path, *, duration_s: float = 40.0, added_mass_kg: float = 
     return out[0], out[1]
 
 
+#: The friction drive runs at constant speed over one speed bump, in the part of the drive
+#: the diagnosis holds out (the last 30 %), so the residual stands out in a time window.
+FRICTION_SPEED_MPS = 12.0
+FRICTION_BUMP_AT_S = 33.0
+
+
 def friction_session(folder: Path, friction_n: float = 150.0) -> Path:
-    """A 40 s simulated drive whose strut has dry friction (the linear model misses it)."""
+    """A 40 s simulated drive whose strut has dry friction (the linear model misses it),
+    over a speed bump at :data:`FRICTION_BUMP_AT_S` (where the misfit stands out)."""
     from fielddiag import sim
+    from fielddiag.sim.road import SpeedBump, SpeedProfile
     from fielddiag.simio import drive_to_session
 
-    drive = sim.simulate(duration_s=40.0, seed=21, sensor=sim.SensorModel(
-        output_rate_hz=200.0, snr_db=40.0), effects=(sim.make_effect(
-            "coulomb_friction", friction_force_n=friction_n),))
+    drive = sim.simulate(
+        duration_s=40.0, seed=21, sensor=sim.SensorModel(output_rate_hz=200.0, snr_db=40.0),
+        speed=SpeedProfile.constant(FRICTION_SPEED_MPS, 40.0),
+        road_events=[SpeedBump(FRICTION_SPEED_MPS * FRICTION_BUMP_AT_S, height_m=0.08)],
+        effects=(sim.make_effect("coulomb_friction", friction_force_n=friction_n),))
     folder.mkdir(parents=True, exist_ok=True)
     return drive_to_session(drive, folder / "friction.h5", vehicle="sticky car")
 
 
+def short_session(folder: Path, duration_s: float) -> Path:
+    """A short simulated drive ``short-<duration>s.h5`` (for lists that sort by duration)."""
+    from fielddiag import sim
+    from fielddiag.simio import drive_to_session
+
+    drive = sim.simulate(duration_s=duration_s, seed=31,
+                         sensor=sim.SensorModel(output_rate_hz=100.0, snr_db=40.0))
+    folder.mkdir(parents=True, exist_ok=True)
+    return drive_to_session(drive, folder / f"short-{duration_s:g}s.h5", vehicle="short car")
+
+
+def error_records(caplog) -> list[logging.LogRecord]:
+    """ERROR (and worse) log records of a test's call phase."""
+    return [r for r in caplog.get_records("call") if r.levelno >= logging.ERROR]
+
+
+def fail_on_error_records(caplog) -> None:
+    """Fail the test on ERROR log records, as nicegui's own ``user`` fixture does (an
+    exception in a handler or a timer is logged by nicegui, not raised into the test)."""
+    import pytest
+
+    errors = error_records(caplog)
+    if errors:
+        pytest.fail("There were unexpected ERROR logs:\n" + "\n".join(
+            f"{r.name}: {r.getMessage()}" + (f"\n{r.exc_text}" if r.exc_text else "")
+            for r in errors), pytrace=False)
+
+
 @contextlib.asynccontextmanager
 async def dashboard_user_for(config) -> AsyncIterator:
-    """nicegui's User on the dashboard configured by ``config`` (a DashboardConfig)."""
+    """nicegui's User on the dashboard configured by ``config`` (a DashboardConfig).
+
+    A copy of nicegui's ``user_simulation`` for an app set up by a function instead of a
+    main file; the fixtures that use it fail the test on ERROR log records afterwards
+    (:func:`fail_on_error_records`), like nicegui's ``user`` fixture.
+    """
     from nicegui import core, ui
     from nicegui.functions.download import download
     from nicegui.functions.navigate import Navigate

@@ -17,7 +17,7 @@ from nicegui import background_tasks, run, ui
 from fielddiag.catalog import result_path
 from fielddiag.errors import FieldDiagError
 from fielddiag.web.charts import xy_options
-from fielddiag.web.layout import not_available, notify_error, page_title
+from fielddiag.web.layout import not_available, notify_error, notify_exception, page_title
 from fielddiag.web.pages.identify import write_result
 from fielddiag.web.results_view import render_diagnosis
 from fielddiag.web.services import call_with_supported, diagnosis_backend, load_result
@@ -96,9 +96,10 @@ def render(state, session: str = "", after: str = "") -> None:
                     rel = by_label.get(label, first_rel)
                     try:
                         tr = await run.io_bound(_body_overview, state, rel)
-                    except FieldDiagError as exc:
+                    except Exception as exc:  # a moved session, or a bug (logged)
                         with box:
-                            ui.label(str(exc)).classes("text-sm text-negative")
+                            ui.label(notify_exception(f"Cannot draw {rel}", exc)).classes(
+                                "text-sm text-negative")
                         continue
                     wins = [(float(w["start_s"]), float(w["end_s"])) for w in windows
                             if isinstance(w, dict) and str(w.get("session", "")) == label]
@@ -107,7 +108,7 @@ def render(state, session: str = "", after: str = "") -> None:
                             [{"name": f"{rel} body", "x": tr.time_s, "y": tr.values}],
                             x_name="time [s]", y_name=f"{tr.name} [{tr.unit}]",
                             title=f"Where the residual stands out: {label or rel}",
-                            mark_x_windows=wins)).classes("w-full h-80").classes(
+                            mark_x_windows=wins, zoom=True)).classes("w-full h-80").classes(
                             "fd-windows-chart").mark("windows-chart")
 
             background_tasks.create(fill(), name="diagnosis windows")
@@ -125,8 +126,8 @@ def render(state, session: str = "", after: str = "") -> None:
             return
         try:
             stored = await run.io_bound(load_result, state.resolve(rel), KIND)
-        except FieldDiagError as exc:
-            notify_error(str(exc))
+        except Exception as exc:  # a broken result file, or a bug (shown with its type)
+            notify_exception(f"Cannot show the stored result of {rel}", exc)
             return
         if stored is None:
             with results:
@@ -174,6 +175,7 @@ def render(state, session: str = "", after: str = "") -> None:
             status.text = f"{job.title}: done in {job.elapsed_s:.1f} s"
             ui.notify("diagnosis done", type="positive")
             show(rel, job.result)
+            background_tasks.create(list_sessions(), name="relist sessions")  # "processed"
 
         timer = ui.timer(0.2, poll)
 
@@ -201,18 +203,27 @@ def render(state, session: str = "", after: str = "") -> None:
 
     run_button.on_click(start)
 
-    async def load() -> None:
+    async def list_sessions() -> dict[str, str] | None:
+        """Offer every readable session (with what has been done to it) in the selects."""
         try:
             found = await run.io_bound(state.catalog.scan)
-        except FieldDiagError as exc:
-            notify_error(str(exc))
-            return
+        except Exception as exc:  # a vanished folder, a permission problem, a bug
+            notify_exception("Cannot list the sessions", exc)
+            return None
         usable = [s for s in found if not s.error]
         summaries.update({s.path: s for s in usable})
         options = {s.path: f"{s.path}  (+{s.added_mass_kg:g} kg; "
                            f"{', '.join(s.processed) or 'not processed'})" for s in usable}
-        sel.set_options(options)
-        second.set_options({NO_SECOND: "(none: one drive)", **options})
+        sel.set_options(options, value=sel.value if sel.value in options else None)
+        seconds = {NO_SECOND: "(none: one drive)", **options}
+        second.set_options(seconds, value=second.value if second.value in seconds else None)
+        return options
+
+    async def load() -> None:
+        options = await list_sessions()
+        if options is None:
+            return
+        usable = list(summaries.values())
         if after in options:
             second.value = after
         if session in options:

@@ -18,7 +18,7 @@ from nicegui import run, ui
 
 from fielddiag.catalog import result_path
 from fielddiag.errors import FieldDiagError
-from fielddiag.web.layout import not_available, notify_error, page_title
+from fielddiag.web.layout import not_available, notify_error, notify_exception, page_title
 from fielddiag.web.results_view import render_identification
 from fielddiag.web.services import call_with_supported, identification_backend, load_result
 
@@ -95,8 +95,8 @@ def render(state, before: str = "", after: str = "") -> None:
             return
         try:
             stored = await run.io_bound(load_result, state.resolve(rel), KIND)
-        except FieldDiagError as exc:
-            notify_error(str(exc))
+        except Exception as exc:  # a broken result file, or a bug (shown with its type)
+            notify_exception(f"Cannot show the stored result of {rel}", exc)
             return
         with results:
             if stored is None:
@@ -134,11 +134,11 @@ def render(state, before: str = "", after: str = "") -> None:
             timer.cancel()
             if backend.available:
                 run_button.enable()
+            progress.set_visibility(False)
             if job.state == "failed":
                 progress_label.text = f"{job.title} failed: {job.error}"
                 notify_error(f"Identification failed: {job.error}")
                 return
-            progress.set_visibility(False)
             progress_label.text = f"{job.title}: done in {job.elapsed_s:.1f} s"
             ui.notify("identification done", type="positive")
             results.clear()
@@ -174,8 +174,8 @@ def render(state, before: str = "", after: str = "") -> None:
     async def load() -> None:
         try:
             found = await run.io_bound(state.catalog.scan)
-        except FieldDiagError as exc:
-            notify_error(str(exc))
+        except Exception as exc:  # a vanished folder, a permission problem, a bug
+            notify_exception("Cannot list the sessions", exc)
             return
         usable = [s for s in found if not s.error]
         summaries.update({s.path: s for s in usable})

@@ -69,11 +69,16 @@ def live_options(traces: list[tuple[str, str, list]], t_hi: float,
         grids.append({"left": 70, "right": 20, "top": y0, "height": h})
         titles.append({"text": f"{name} [{unit}]" if unit else name, "top": y0 - 20,
                        "left": 70, "textStyle": {"fontSize": 12, "fontWeight": "normal"}})
+        # axis lines at the plot's edges, not through zero (time 0 sits mid-plot in the
+        # first seconds of a recording)
         xs.append({"type": "value", "gridIndex": i, "min": round(t_hi - WINDOW_S, 3),
-                   "max": round(t_hi, 3),
+                   "max": round(t_hi, 3), "axisLine": {"onZero": False},
+                   "name": "session time [s]" if i == n - 1 else "",
+                   "nameLocation": "middle", "nameGap": 24,
                    "axisLabel": {"show": i == n - 1, "showMinLabel": False,
                                  "showMaxLabel": False}})
-        ys.append({"type": "value", "gridIndex": i, "scale": True, "splitNumber": 3})
+        ys.append({"type": "value", "gridIndex": i, "scale": True, "splitNumber": 3,
+                   "axisLine": {"onZero": False}})
         series.append({"name": name, "type": "line", "xAxisIndex": i, "yAxisIndex": i,
                        "showSymbol": False, "animation": False, "lineStyle": {"width": 1},
                        "color": PALETTE[i % len(PALETTE)], "data": data,
@@ -84,6 +89,38 @@ def live_options(traces: list[tuple[str, str, list]], t_hi: float,
                                     "data": marks}})
     return {"animation": False, "title": titles, "grid": grids, "xAxis": xs, "yAxis": ys,
             "series": series}
+
+
+def _observability_row(p: dict) -> None:
+    """One parameter of the on-line estimate: name and state, a bar of how close its
+    relative standard deviation is to the goal (full: reached), and the numbers."""
+    rel = float(p.get("rel_std_pct") or float("inf"))
+    target = float(p.get("target_rel_std_pct") or 5.0)
+    level = min(1.0, target / rel) if rel > 0 else 1.0
+    state = str(p.get("state", ""))
+    colour = {"ok": "positive", "converging": "warning"}.get(state, "negative")
+    with ui.column().classes("w-full gap-0").mark("observability-param"):
+        with ui.row().classes("w-full items-center justify-between no-wrap"):
+            ui.label(str(p.get("label", p.get("name", "?")))).classes("text-sm").mark(
+                "observability-name")
+            ui.badge(state, color=colour).classes("text-xs").mark("observability-state")
+        ui.linear_progress(value=round(level, 3), show_value=False, color=colour).props(
+            "rounded size=8px").mark("observability-bar")
+        ui.label(f"{p.get('value', float('nan')):.4g} {p.get('unit', '')} "
+                 f"± {rel:.1f} % (goal {target:.0f} %), "
+                 f"{p.get('information_bits', 0.0):.1f} bit").classes(
+            "text-xs text-gray-600 font-mono")
+
+
+def _faults(corrupt_rate, garbage_every_s, stall_at_s, stall_for_s, buffer_kb) -> dict:
+    """LiveOptions' fault keywords from the page's number inputs (None: the default)."""
+    return {
+        "corrupt_rate": float(corrupt_rate or 0.0),
+        "garbage_every_s": float(garbage_every_s) if garbage_every_s else None,
+        "stall_at_s": float(stall_at_s) if stall_at_s else None,
+        "stall_for_s": float(stall_for_s) if stall_for_s else 1.0,
+        "tx_buffer_bytes": int(float(buffer_kb or 64) * 1024),
+    }
 
 
 def render(state) -> None:
@@ -123,6 +160,23 @@ def render(state) -> None:
             start_b = ui.button("Start", icon="fiber_manual_record", color="negative").mark(
                 "live-start")
             stop_b = ui.button("Stop", icon="stop").mark("live-stop")
+        with ui.expansion("Faults of the virtual DAQ (to see how the recorder copes)",
+                          icon="bug_report").classes("w-full text-sm").mark("faults"):
+            with ui.row().classes("w-full items-end gap-3"):
+                corrupt = ui.number("byte corruption rate", value=0.0, min=0.0, max=0.099,
+                                    step=0.0005, format="%.4f").classes("w-44").tooltip(
+                    "probability that a byte on the serial link is altered: the frame "
+                    "fails its CRC and is lost").mark("fault-corrupt-rate")
+                garbage = ui.number("garbage burst every [s]", value=None, min=0.1,
+                                    step=1.0).classes("w-44").mark("fault-garbage")
+                stall_at = ui.number("stall at [s]", value=None, min=0.1, step=1.0).classes(
+                    "w-32").tooltip("the device stops sending; frames that no longer fit "
+                                    "its transmit buffer are dropped").mark("fault-stall-at")
+                stall_for = ui.number("stall for [s]", value=3.0, min=0.1, step=1.0).classes(
+                    "w-32").mark("fault-stall-for")
+                tx_kb = ui.number("device buffer [kB]", value=64, min=1, step=1).classes(
+                    "w-36").mark("fault-buffer")
+    fault_inputs = (corrupt, garbage, stall_at, stall_for, tx_kb)
     with ui.row().classes("w-full gap-2 items-center"):
         counter_labels = {}
         for key, label, _fmt in COUNTERS:
@@ -159,7 +213,7 @@ def render(state) -> None:
         start_b.set_enabled(not running)
         stop_b.set_enabled(running)
         event_b.set_enabled(running)
-        for el in (daq, daq_url, can, can_url, name, vehicle, corner, mass):
+        for el in (daq, daq_url, can, can_url, name, vehicle, corner, mass, *fault_inputs):
             el.set_enabled(not running)
 
     def set_text(label, text: str) -> None:
@@ -244,20 +298,7 @@ def render(state) -> None:
         obs_body.clear()
         with obs_body:
             for p in obs.get("parameters", []):
-                rel = float(p.get("rel_std_pct") or float("inf"))
-                target = float(p.get("target_rel_std_pct") or 5.0)
-                level = min(1.0, target / rel) if rel > 0 else 1.0
-                colour = {"ok": "positive", "converging": "warning"}.get(p.get("state"),
-                                                                         "negative")
-                with ui.row().classes("w-full items-center justify-between no-wrap"):
-                    ui.label(str(p.get("label", p.get("name", "?")))).classes("text-sm")
-                    ui.badge(str(p.get("state", "")), color=colour).classes("text-xs")
-                ui.linear_progress(value=level, show_value=False, color=colour).props(
-                    "rounded size=8px")
-                ui.label(f"{p.get('value', float('nan')):.4g} {p.get('unit', '')} "
-                         f"± {rel:.1f} % (goal {target:.0f} %), "
-                         f"{p.get('information_bits', 0.0):.1f} bit").classes(
-                    "text-xs text-gray-600 font-mono")
+                _observability_row(p)
             ui.label(str(obs.get("advice", ""))).classes("text-sm font-medium mt-1").mark(
                 "observability-advice")
 
@@ -276,15 +317,22 @@ def render(state) -> None:
         if out.exists():
             notify_error(f"{rel} already exists; choose another session file name")
             return
+        try:
+            opts = LiveOptions(
+                path=out,
+                daq=(daq_url.value or "").strip() or daq.value or NONE,
+                can=(can_url.value or "").strip() or can.value or NONE,
+                metadata=SessionMetadata(vehicle=vehicle.value or "",
+                                         corner=corner.value or "",
+                                         added_mass_kg=float(mass.value or 0.0),
+                                         operator="fielddiag dashboard"),
+                **_faults(corrupt.value, garbage.value, stall_at.value, stall_for.value,
+                          tx_kb.value),
+            )
+        except FieldDiagError as exc:
+            notify_error(f"Cannot start recording: {exc}")
+            return
         out.parent.mkdir(parents=True, exist_ok=True)
-        opts = LiveOptions(
-            path=out,
-            daq=(daq_url.value or "").strip() or daq.value or NONE,
-            can=(can_url.value or "").strip() or can.value or NONE,
-            metadata=SessionMetadata(vehicle=vehicle.value or "", corner=corner.value or "",
-                                     added_mass_kg=float(mass.value or 0.0),
-                                     operator="fielddiag dashboard"),
-        )
         start_b.props("loading")
         try:
             rec = await run.io_bound(LiveRecording(opts).start)

@@ -20,7 +20,7 @@ from fielddiag.web.charts import timeseries_height_px, timeseries_options, zoom_
 from fielddiag.web.layout import (
     file_link,
     fmt_duration,
-    notify_error,
+    notify_exception,
     page_title,
     push_chart_update,
 )
@@ -70,6 +70,12 @@ def render(state, path: str = "") -> None:
         ui.label(str(exc)).classes("text-negative").mark("session-error")
         ui.link("back to the sessions", "/")
         return
+    except Exception as exc:  # a bug: shown with its type, logged with the traceback
+        page_title("Session")
+        ui.label(notify_exception(f"Cannot open {path}", exc)).classes("text-negative").mark(
+            "session-error")
+        ui.link("back to the sessions", "/")
+        return
     if summary.error:
         page_title(summary.path)
         ui.label(summary.error).classes("text-negative").mark("session-error")
@@ -101,10 +107,11 @@ def render(state, path: str = "") -> None:
                              else run.io_bound(_fetch, window))
             if fetched is None:  # the server is shutting down
                 return
+            if isinstance(fetched, Exception):  # the overview read ahead failed
+                raise fetched
             traces, t0, t1, events, gaps, fetch_s = fetched
-        except FieldDiagError as exc:
-            notify_error(str(exc))
-            status.text = str(exc)
+        except Exception as exc:  # a data problem, or a bug (shown with its type, logged)
+            status.text = notify_exception(f"Cannot read {summary.path}", exc)
             return
         view.update(t0=t0, t1=t1 + 1.0 / max(summary.sample_rate_hz, 1e-9), events=events,
                     gaps=gaps, window=window, fetch_s=fetch_s)
@@ -161,7 +168,15 @@ def render(state, path: str = "") -> None:
     chart.on("chart:restore", lambda: zoom_to(None), [])
 
     # Start reading the overview now, while the browser is still loading and connecting.
-    overview = background_tasks.create(run.io_bound(_fetch, None), name="session overview")
+    # Its failure is returned, not raised: a task that raises is logged as an error by
+    # nicegui even when draw() handles it.
+    async def read_overview():
+        try:
+            return await run.io_bound(_fetch, None)
+        except Exception as exc:
+            return exc
+
+    overview = background_tasks.create(read_overview(), name="session overview")
 
     async def first_draw() -> None:
         await draw(None, prefetched=overview)
