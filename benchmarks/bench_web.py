@@ -149,6 +149,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--dtype", default="int32", choices=("int16", "int32", "float64"))
     ap.add_argument("--live-seconds", type=float, default=10.0)
+    ap.add_argument("--dump-live", metavar="FILE", help="save every live frame's latency")
     args = ap.parse_args()
     if not shutil.which("chromedriver"):
         print("needs chromium and chromium-driver (apt-get install chromium chromium-driver)")
@@ -235,6 +236,8 @@ def main() -> int:
             d.find_element("xpath", "//button[contains(normalize-space(.), 'Stop')]").click()
             time.sleep(1.0)
             ms = lat[:, 1] * 1000
+            if args.dump_live:
+                np.savetxt(args.dump_live, lat, header="browser_ms latency_s")
             fps = (len(lat) - 1) / ((lat[-1, 0] - lat[0, 0]) / 1000)
             print(f"live view, {len(lat)} frames over {args.live_seconds:g} s ({fps:.1f} "
                   f"frames/s): newest sample time -> drawn: median {np.median(ms):.0f} ms, "

@@ -290,10 +290,13 @@ class Recorder:
     def _store(self, src: Source, block: Block) -> None:
         w = self.writer
         if block.n_samples:
-            w.append_daq(block.samples, block.time_s)
+            # the live view first: appending waits while the writer flushes to disk (up
+            # to a few hundred ms), which the live plot should not
             cal = block.calibrated(src.channels)
             with self._lock:
                 self._ring.push(cal.time_s, cal.samples)
+            w.append_daq(block.samples, block.time_s)
+            with self._lock:
                 self._samples += block.n_samples
             for fn in list(self.block_listeners):
                 try:
@@ -301,9 +304,9 @@ class Recorder:
                 except Exception:
                     self.listener_errors += 1
         for name, (t, v) in block.signals.items():
-            w.append_signal(name, t, v)
             with self._lock:
                 self._sig_rings[name].push(t, v[:, None])
+            w.append_signal(name, t, v)
         if block.can_frames is not None and len(block.can_frames):
             w.append_can_frames(block.can_frames)
         for g in block.gaps:

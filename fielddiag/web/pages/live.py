@@ -16,7 +16,7 @@ from fielddiag.catalog import OutsideRootError, resolve_under_root
 from fielddiag.channels import SessionMetadata
 from fielddiag.downsample import minmax_lttb_indices
 from fielddiag.errors import FieldDiagError
-from fielddiag.web.charts import PALETTE, pairs
+from fielddiag.web.charts import PALETTE, pairs_array
 from fielddiag.web.layout import (
     not_available,
     notify_error,
@@ -255,11 +255,11 @@ def render(state) -> None:
         t_hi = float(t[-1]) if t.size else float(st.get("elapsed_s", 0.0))
         for ch_name, v in chans.items():
             idx = minmax_lttb_indices(t, v, LIVE_POINTS)
-            traces.append((ch_name, units.get(ch_name, ""), pairs(t[idx], v[idx], 4)))
+            traces.append((ch_name, units.get(ch_name, ""), pairs_array(t[idx], v[idx], 4)))
         for sig_name, (ts, vs) in rec.latest_signals(WINDOW_S).items():
             if sig_name in ("vehicle_speed",) or sig_name.lower().endswith("speed"):
                 idx = minmax_lttb_indices(ts, vs, LIVE_POINTS)
-                traces.append((sig_name, units.get(sig_name, ""), pairs(ts[idx], vs[idx], 4)))
+                traces.append((sig_name, units.get(sig_name, ""), pairs_array(ts[idx], vs[idx], 4)))
                 break
         events = rec.recorder.events
         opts = live_options(traces, t_hi, events)
