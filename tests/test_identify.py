@@ -391,3 +391,16 @@ def test_recording_with_a_gap_is_analysed_around_it(tmp_path):
             sample_rate_hz=fs, time_s=d.time_s[keep]))
     res = identify_sessions(*paths, added_mass_kg=60.0)
     _check_within_budget_and_std(res, TRUTH)
+
+
+def test_cli_loops_at_chosen_frequencies(session_pair, capsys):
+    before, after, d = session_pair
+    out = d / "loops.json"
+    rc = cli_main(["identify", str(before), str(after), "--added-mass", "60", "--json", str(out),
+                   "--loops", "1.5", "6"])
+    assert rc == 0
+    loops = json.loads(out.read_text())["hysteresis"]
+    assert sorted({round(lp["freq_hz"], 6) for lp in loops}) == [1.5, 6.0]
+    assert len(loops) == 4  # both frequencies in both drives
+    assert cli_main(["identify", str(before), str(after), "--loops", "-1"]) == 1
+    assert "--loops" in capsys.readouterr().err

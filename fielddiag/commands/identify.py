@@ -36,6 +36,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--k3", choices=["auto", "fit", "zero"], default="auto",
                    help="coupling stiffness K3: keep when significant (auto, default), always "
                    "fit, or hold at 0")
+    p.add_argument("--loops", nargs="+", type=float, metavar="HZ",
+                   help="frequencies of the hysteresis loops (default: 0.7, 1, 2 and 4 times "
+                   "the body natural frequency, where inside the band)")
     p.set_defaults(func=run)
 
 
@@ -45,11 +48,14 @@ def run(args: argparse.Namespace) -> int:
     for path in (args.before, args.after):
         if not Path(path).is_file():
             raise FieldDiagError(f"{path} does not exist; give two session files (.h5)")
+    if args.loops and not all(0 < f < 1e4 for f in args.loops):
+        raise FieldDiagError("--loops: give frequencies in Hz above 0, e.g. --loops 1.2 5")
     if args.json and not Path(args.json).resolve().parent.is_dir():
         raise FieldDiagError(f"folder of {args.json} does not exist; create it first")
     result = identify_sessions(
         args.before, args.after, added_mass_kg=args.added_mass,
-        band_hz=tuple(args.band) if args.band else None, config=IdentifyConfig(k3=args.k3))
+        band_hz=tuple(args.band) if args.band else None, config=IdentifyConfig(
+            k3=args.k3, hysteresis_freqs_hz=tuple(args.loops) if args.loops else None))
     print(result.summary())
     if args.json:
         result.to_json(args.json)
