@@ -87,7 +87,7 @@ def notify_exception(what: str, exc: BaseException) -> str:
 
 def fmt_duration(seconds: float) -> str:
     s = float(seconds)
-    if s < 120:
+    if round(s, 1) <= 120:  # as shown: 119.998 and 120.002 s both read 120.0 s
         return f"{s:.1f} s"
     m, s = divmod(int(round(s)), 60)
     h, m = divmod(m, 60)
