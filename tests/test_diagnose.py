@@ -103,6 +103,10 @@ def test_cli_pair_with_plots(pending, tmp_path, capsys):
     ]
     text = capsys.readouterr().out
     assert "asymmetric" in text and "MISSING PHYSICS" in text
+    # the linear part refitted with the finding, in SI units, beside the linear model alone
+    m2 = out["augmented_model"]["sprung_mass_kg"]
+    assert "linear part, fitted with the findings: " in text
+    assert f"sprung mass {m2:.4g} kg" in text and "(the linear model alone: " in text
 
 
 def _true_params(name: str, effect: str) -> dict[str, float]:
@@ -133,6 +137,8 @@ def test_single_drive_names_friction_per_kg_and_nothing_else(pending, tmp_path, 
     assert per_kg == pytest.approx(150.0 / car.body_mass_kg, rel=REL_SINGLE)
     assert out["augmented"]["nrmse_validation"] < NRMSE_RATIO * out["baseline"][
         "nrmse_validation"]
+    text = capsys.readouterr().out
+    assert "linear part, fitted with the findings: " in text and "N/m per kg" in text
 
 
 def test_catalogue_covers_the_acceptance_list():

@@ -7,6 +7,29 @@ def _fmt_params(params: dict[str, float]) -> str:
     return ", ".join(f"{k} = {v:.4g}" for k, v in params.items())
 
 
+_MODEL_LABELS = (  # key suffix -> (name, unit); the longest suffix that fits wins
+    ("sprung_mass_kg", "sprung mass", "kg"),
+    ("_n_per_m_per_kg", "", "N/m per kg"),
+    ("_ns_per_m_per_kg", "", "N s/m per kg"),
+    ("_n_per_m", "", "N/m"),
+    ("_ns_per_m", "", "N s/m"),
+)
+
+
+def _fmt_model(model: dict) -> str:
+    """``sprung mass 379.7 kg, suspension stiffness 2.397e+04 N/m, ...``"""
+    parts = []
+    for key, value in model.items():
+        name, unit = key.replace("_", " "), ""
+        for suffix, label, u in _MODEL_LABELS:
+            if key.endswith(suffix):
+                name = label or key[: -len(suffix)].replace("_", " ")
+                unit = u
+                break
+        parts.append(f"{name} {value:.4g} {unit}".rstrip())
+    return ", ".join(parts)
+
+
 def format_summary(out: dict) -> str:
     """Readable text of a diagnosis dict (vehicle or rig mode)."""
     lines = []
@@ -38,6 +61,11 @@ def format_summary(out: dict) -> str:
                 f"{w['session']} {w['start_s']:.1f}-{w['end_s']:.1f} s" for w in wins[:4]
             )
             lines.append(f"    worst windows: {txt}")
+    aug, lin = out.get("augmented_model") or {}, out.get("linear_model") or {}
+    if out["verdict"] != "adequate" and aug and mode != "rig":
+        lines.append("  linear part, fitted with the findings: " + _fmt_model(aug))
+        if lin:
+            lines.append("    (the linear model alone: " + _fmt_model(lin) + ")")
     if "parameters" in out and mode == "rig":
         p = out["parameters"]
         lines.append(
