@@ -159,7 +159,9 @@ def run_case(case: dict) -> dict:
     t0 = time.perf_counter()
     res = identify_recordings(Recording(b.wheel_accel_mps2, b.body_accel_mps2, fs),
                               Recording(a.wheel_accel_mps2, a.body_accel_mps2, fs), case["dm"])
-    out = {"wall_s": time.perf_counter() - t0, "k3": res.k3_included}
+    out = {"wall_s": time.perf_counter() - t0, "k3": res.k3_included,
+           "misfit": res.routes["time"].cost / res.routes["time"].n_residuals,
+           "flagged_nonlinear": any("not linear" in w for w in res.warnings)}
     truth = case["params"].to_dict()
     for key, tkey in TRUTH_KEY.items():
         for route in ROUTES:
@@ -198,6 +200,10 @@ def bench_coverage(n: int, seed: int = 2024) -> None:
                   f"{100 * np.mean(z <= 1):4.0f} / {100 * np.mean(z <= 2):4.0f} / "
                   f"{100 * np.mean(z <= 3):4.0f} %  (Gaussian 68/95/99.7)")
     print(f"K3 kept (false alarm, truth K3 = 0): {sum(r['k3'] for r in rows)} of {len(rows)}")
+    mis = np.array([r["misfit"] for r in rows])
+    print(f"time-route residual / sensor noise (linear cars): median {np.median(mis):.2f}, "
+          f"max {mis.max():.2f}; flagged 'not linear' (false alarm): "
+          f"{sum(r['flagged_nonlinear'] for r in rows)} of {len(rows)}")
 
 
 # ---------------------------------------------------------------------------------------

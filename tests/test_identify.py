@@ -81,6 +81,7 @@ def test_identifies_mass_stiffness_damping_within_budget(params, frac, rate, snr
     res = identify_recordings(*_recs(b, a), dm, config=IdentifyConfig(display=False))
     _check_within_budget_and_std(res, params)
     assert not res.k3_included  # K3 = 0 in truth
+    assert not [w for w in res.warnings if "not linear" in w]  # no false alarm
     # the two routes agree within their uncertainties
     assert max(res.route_agreement[k] for k in BUDGET) < 3.0
     fn = params.body_natural_frequency_hz()
@@ -223,6 +224,22 @@ def test_transmissibility_peaks_and_estimators():
                                    np.asarray(tr.coherence) * np.abs(tr.h2.array()),
                                    rtol=1e-6)
     assert peaks[1] < peaks[0]
+
+
+@pytest.mark.parametrize("name", ["cubic_1", "small_cubic"])
+def test_a_nonlinear_suspension_is_flagged_not_reported_as_linear(name):
+    """A progressive spring biases the linear answer far beyond its std (cubic_1: M2
+    about 420 +- 2 kg against 380); the time route's residual, many times the sensor
+    noise, gives it away and the warning sends the user to the diagnosis."""
+    from fielddiag.scenarios import SCENARIOS, simulate_scenario
+
+    sc = SCENARIOS[name]
+    b, a = simulate_scenario(sc)
+    res = identify_recordings(*_recs(b, a), sc.added_mass_kg,
+                              config=IdentifyConfig(display=False))
+    flagged = [w for w in res.warnings if "not linear" in w]
+    assert len(flagged) == 1 and "fielddiag diagnose" in flagged[0]
+    assert "times the sensor noise" in flagged[0]
 
 
 def test_coupling_stiffness_is_kept_only_when_the_data_call_for_it():
