@@ -90,6 +90,24 @@ def _software_version() -> str:
     return __version__
 
 
+def safe_name(text: str, default: str = "channel") -> str:
+    """A valid channel or signal name made from any text (a CSV column, an MDF channel, a
+    DBC signal): characters other than letters, digits, '_', '-' and '.' become '_'
+    (``acc x [g]`` -> ``acc_x__g_``)."""
+    return re.sub(r"[^A-Za-z0-9_.\-]", "_", text.strip()) or default
+
+
+def unique_name(text: str, taken: set[str], default: str = "channel") -> str:
+    """:func:`safe_name` of ``text``, with ``_2``, ``_3``... until it is not in ``taken``;
+    the name returned is added to ``taken``."""
+    base = safe_name(text, default)
+    name, k = base, 2
+    while name in taken:
+        name, k = f"{base}_{k}", k + 1
+    taken.add(name)
+    return name
+
+
 def _check_name(kind: str, name: str) -> None:
     if not _NAME_RE.match(name):
         raise SessionError(

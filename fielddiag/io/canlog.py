@@ -42,6 +42,7 @@ from fielddiag.session import (
     CAN_FLAG_REMOTE,
     CAN_FLAG_RX,
     CAN_FRAME_DTYPE,
+    safe_name,
 )
 
 G_MPS2 = 9.80665
@@ -357,7 +358,7 @@ def resolve_signals(
             continue
         seen.add(key)
         session_name = s.name if short_count[s.name] == 1 else f"{m.name}.{s.name}"
-        session_name = re.sub(r"[^A-Za-z0-9_.\-]", "_", session_name)
+        session_name = safe_name(session_name)
         role = "speed" if key == speed_key else "other"
         choices.append(SignalChoice(session_name, di, m, s, role))
     return choices

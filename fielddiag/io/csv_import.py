@@ -19,7 +19,6 @@ import csv
 import difflib
 import math
 import os
-import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,7 +27,7 @@ import numpy as np
 
 from fielddiag.channels import ChannelSpec, SessionMetadata, SignalSpec
 from fielddiag.errors import ImportFormatError
-from fielddiag.session import write_session
+from fielddiag.session import unique_name, write_session
 
 G_MPS2 = 9.80665
 
@@ -226,16 +225,6 @@ def check_role_names(name: str, roles: Mapping[str, str]) -> None:
             )
 
 
-def _extra_channel_name(column: str, taken: set[str]) -> str:
-    """The channel name for a column kept as it is: the column's own name, made a valid
-    and unique session name (``acc x [g]`` -> ``acc_x__g_``)."""
-    base = re.sub(r"[^A-Za-z0-9_.\-]", "_", column.strip()) or "column"
-    name, k = base, 2
-    while name in taken:
-        name, k = f"{base}_{k}", k + 1
-    return name
-
-
 def import_csv(
     path: str | os.PathLike,
     out_path: str | os.PathLike,
@@ -297,8 +286,7 @@ def import_csv(
         columns.append(values)
     taken = {c.name for c in channels}
     for col, values in extras:  # after the role channels, whose names are fixed
-        name = _extra_channel_name(col, taken)
-        taken.add(name)
+        name = unique_name(col, taken, default="column")
         channels.append(ChannelSpec(name, unit="", role="other", sensor=f"csv:{col}"))
         columns.append(values)
     if not channels:

@@ -37,7 +37,6 @@ import importlib.util
 import json
 import math
 import os
-import re
 import sys
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import fields
@@ -60,6 +59,7 @@ from fielddiag.session import (
     CAN_FLAG_RX,
     CAN_FRAME_DTYPE,
     SessionReader,
+    unique_name,
 )
 
 MANIFEST_NAME = "fielddiag_session.json"
@@ -113,11 +113,6 @@ def require_asammdf() -> None:
             "MDF4 files need the asammdf package, which is not installed: "
             "pip install 'fielddiag[mdf]' (or pip install asammdf)"
         )
-
-
-def _safe_name(name: str) -> str:
-    out = re.sub(r"[^A-Za-z0-9_.\-]", "_", name.strip()) or "channel"
-    return out
 
 
 # ============================================================================ export
@@ -742,12 +737,7 @@ def _plan_generic(
     used_names: set[str] = set()
 
     def unique(name: str) -> str:
-        base, k = _safe_name(name), 2
-        name = base
-        while name in used_names:
-            name, k = f"{base}_{k}", k + 1
-        used_names.add(name)
-        return name
+        return unique_name(name, used_names)
 
     role_of = {(gi, ci): r for r, (gi, ci, _n) in role_pos.items()}
     if daq_group is not None:
