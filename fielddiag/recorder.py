@@ -583,43 +583,6 @@ def format_status(st: dict[str, Any]) -> str:
     return " | ".join(parts)
 
 
-def _number(x: float) -> str:
-    return f"{x:.3g}" if abs(x) < 1e4 else f"{x:.0f}"
-
-
-def _rel_pct(x: float | None) -> str:
-    if x is None:
-        return "?"
-    return f"{x:.0f}" if x >= 10 else (f"{x:.1f}" if x >= 1 else f"{x:.2f}")
-
-
-def format_online_status(online: Mapping[str, Any]) -> str:
-    """The on-line estimate in one compact line: value ± relative std and information.
-
-    Parameters
-    ----------
-    online : dict
-        ``Recorder.status()["online"]`` (:meth:`~fielddiag.identify.online.OnlineEstimator.status`).
-
-    Returns
-    -------
-    str
-        E.g. ``on-line (12.0 s): stiffness 63.2 N/m/kg ±1.2 % 8.1 bit | damping 4.74
-        N s/m/kg ±5.3 % 3.2 bit``; absolute values when the body mass is known.
-    """
-    parts = []
-    for p in online.get("parameters", []):
-        if p.get("absolute_value") is not None:
-            unit = p["unit"][: -len("/kg")] if p["unit"].endswith("/kg") else p["unit"]
-            value = p["absolute_value"]
-        else:
-            unit, value = p["unit"], p["value"]
-        shown = "?" if value is None else _number(value)
-        parts.append(f"{p['label']} {shown} {unit} ±{_rel_pct(p.get('rel_std_pct'))} % "
-                     f"{p['information_bits']:.1f} bit")
-    return f"on-line ({online.get('duration_s', 0.0):.1f} s): " + " | ".join(parts)
-
-
 def status_lines(st: Mapping[str, Any]) -> list[str]:
     """The live status as lines: recorder counters, then the on-line estimate and its advice.
 
@@ -627,8 +590,10 @@ def status_lines(st: Mapping[str, Any]) -> list[str]:
     """
     lines = [format_status(st)]
     online = st.get("online")
-    if online:
-        lines.append(format_online_status(online))
+    if online:  # the estimator is running, so its module is imported already
+        from fielddiag.identify.online import format_estimate
+
+        lines.append(format_estimate(online))
         lines.append("advice: " + online.get("advice", ""))
     elif st.get("online_error"):
         lines.append("on-line estimate unavailable: " + st["online_error"])

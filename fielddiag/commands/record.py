@@ -128,7 +128,7 @@ def build_sources(args: argparse.Namespace) -> list:
 
 def run(args: argparse.Namespace) -> int:
     from fielddiag.channels import SessionMetadata
-    from fielddiag.recorder import Recorder, StatusPrinter, format_online_status
+    from fielddiag.recorder import Recorder, StatusPrinter, status_lines
 
     sources = build_sources(args)
     meta = SessionMetadata(
@@ -174,8 +174,7 @@ def run(args: argparse.Namespace) -> int:
             signal.signal(signal.SIGINT, signal.default_int_handler)
             printer.finish()
     if "online" in final:
-        print(format_online_status(final["online"]) + "\nadvice: " + final["online"]["advice"],
-              file=sys.stderr)
+        print("\n".join(status_lines(final)[1:]), file=sys.stderr)
     print(
         f"stopped after {final['elapsed_s']:.1f} s: {final['samples']} samples, "
         f"{final['frames_received']} frames, {final['frames_lost']} lost, "

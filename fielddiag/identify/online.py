@@ -44,7 +44,7 @@ from numba import njit
 from fielddiag.errors import ChannelNotFoundError, FieldDiagError
 from fielddiag.identify.terms import ForceModel, linear_model, model_force
 
-__all__ = ["OnlineEstimator", "advice_line"]
+__all__ = ["OnlineEstimator", "advice_line", "format_estimate", "format_status"]
 
 GRAVITY_MPS2 = 9.80665
 
@@ -555,15 +555,28 @@ class OnlineEstimator:
         }
 
 
-def format_status(st: Mapping[str, Any]) -> str:
-    """One console line of :meth:`OnlineEstimator.status`."""
-    t = st.get("time_s")
-    parts = [f"{t:7.1f} s" if t is not None else "      - s"]
+def format_estimate(st: Mapping[str, Any]) -> str:
+    """The estimate of :meth:`OnlineEstimator.status` in one line: value ± relative std
+    and information per parameter, absolute values when the body mass is known.
+
+    E.g. ``on-line (12.0 s): stiffness 63.2 N/m/kg ±1.2 % 8.1 bit | damping 4.74 N s/m/kg
+    ±5.3 % 3.2 bit``.
+    """
+    parts = []
     for p in st["parameters"]:
-        rel = p["rel_std_pct"]
-        parts.append(f"{p['label']} {p['value']:.4g} ±{_pct(math.inf if rel is None else rel)} "
-                     f"% ({p['information_bits']:.1f} bit)")
-    return "  ".join(parts) + "  | " + st["advice"]
+        value, unit = p["value"], p["unit"]
+        if p.get("absolute_value") is not None:
+            value, unit = p["absolute_value"], unit.removesuffix("/kg")
+        shown = "?" if value is None else (f"{value:.3g}" if abs(value) < 1e4 else f"{value:.0f}")
+        rel = p.get("rel_std_pct")
+        parts.append(f"{p['label']} {shown} {unit} ±{_pct(math.inf if rel is None else rel)} % "
+                     f"{p['information_bits']:.1f} bit")
+    return f"on-line ({st.get('duration_s', 0.0):.1f} s): " + " | ".join(parts)
+
+
+def format_status(st: Mapping[str, Any]) -> str:
+    """One console line of :meth:`OnlineEstimator.status`: the estimate and the advice."""
+    return format_estimate(st) + " | advice: " + st["advice"]
 
 
 def replay(
