@@ -18,6 +18,9 @@ from web_helpers import FRICTION_BUMP_AT_S, SCREENSHOT_DIR, friction_session, sh
 from fielddiag.catalog import result_path
 from fielddiag.web.services import diagnosis_backend, recorder_backend
 
+#: Per series of the chart ``arguments[0]`` (a CSS selector), as the browser's ECharts
+#: instance holds it: its name, number of points, the x of its last point and the areas it
+#: shades (markArea pairs).
 CHART_JS = """
 const el = document.querySelector(arguments[0]);
 if (!el) return null;
@@ -25,20 +28,8 @@ const comp = getElement(el.id.slice(1));
 if (!comp || !comp.chart) return null;
 const o = comp.chart.getOption();
 if (!o || !o.series) return null;
-return o.series.map(s => [s.name, (s.data || []).length,
-                          (s.data && s.data.length) ? s.data[s.data.length - 1][0] : null]);
-"""
-
-#: Per series of the chart ``arguments[0]`` (a CSS selector): its name, number of points
-#: and the areas it shades (markArea pairs), as the browser's ECharts instance holds them.
-CHART_AREAS_JS = """
-const el = document.querySelector(arguments[0]);
-if (!el) return null;
-const comp = getElement(el.id.slice(1));
-if (!comp || !comp.chart) return null;
-const o = comp.chart.getOption();
-if (!o || !o.series) return null;
 return o.series.map(s => ({name: s.name, n: (s.data || []).length,
+                           last: (s.data && s.data.length) ? s.data[s.data.length - 1][0] : null,
                            areas: (s.markArea && s.markArea.data) || []}));
 """
 
@@ -100,12 +91,15 @@ def js_errors(driver) -> list[dict]:
             and "favicon" not in e.get("message", "")]
 
 
-def chart_series(driver, selector: str):
+def chart_areas(driver, selector: str) -> list[dict] | None:
+    """``[{"name", "n", "last", "areas"}, ...]`` of the chart, or None while it is not drawn."""
     return driver.execute_script(CHART_JS, selector)
 
 
-def chart_areas(driver, selector: str) -> list[dict] | None:
-    return driver.execute_script(CHART_AREAS_JS, selector)
+def chart_series(driver, selector: str) -> list[list] | None:
+    """``[[name, points, last x], ...]`` of the chart, or None while it is not drawn."""
+    series = chart_areas(driver, selector)
+    return None if series is None else [[s["name"], s["n"], s["last"]] for s in series]
 
 
 def shot_of(driver, selector: str, name: str) -> Path:
