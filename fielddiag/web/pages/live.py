@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import time
 
+import numpy as np
 from nicegui import background_tasks, run, ui
 
 from fielddiag.catalog import OutsideRootError, resolve_under_root
@@ -55,10 +56,11 @@ def stop_all(state) -> None:
         rec.stop()
 
 
-def live_options(traces: list[tuple[str, str, list]], t_hi: float,
+def live_options(traces: list[tuple[str, str, np.ndarray]], t_hi: float,
                  events: list[tuple[float, str]] = ()) -> dict:
     """Stacked live plots over the last WINDOW_S seconds ending at ``t_hi``, with the
-    events of that window as labelled vertical lines."""
+    events of that window as labelled vertical lines. Each trace is (name, unit, points):
+    ``(n, 2)`` time/value points (:func:`~fielddiag.web.charts.pairs_array`)."""
     marks = [{"xAxis": round(te, 3), "label": {"formatter": lbl[:20]}}
              for te, lbl in events if t_hi - WINDOW_S <= te <= t_hi]
     n = max(1, len(traces))
