@@ -71,9 +71,9 @@ def test_demo_records_identifies_and_diagnoses(tmp_path):
         assert b.counters["frames_lost"] == 0 and b.counters["frames_received"] > 0
         assert b.duration_s == pytest.approx(32.0, abs=1.5)
         assert {s.name for s in b.signals} >= {"vehicle_speed"}
-    ident = json.loads((run / "identify.json").read_text())
+    ident = json.loads((run / "before.identify.json").read_text())
     assert ident["sprung_mass_kg"]["value"] > 0 and ident["sprung_mass_kg"]["std"] > 0
-    diag = json.loads((run / "diagnose.json").read_text())
+    diag = json.loads((run / "before.diagnose.json").read_text())
     assert diag["verdict"] in ("adequate", "missing_physics")
     assert (run / "plots" / "transmissibility.png").exists()
     assert "4/4 dashboard skipped" in proc.stdout

@@ -108,19 +108,15 @@ def _record_pair(run_dir: Path, args: argparse.Namespace) -> list[Path]:
     return [results["before"], results["after"]]
 
 
-def _store_beside_sessions(result: dict, kind: str, sessions: list[Path]) -> list[Path]:
+def _store_beside_sessions(result: dict, kind: str, sessions: list[Path]) -> None:
     """Write a result where the dashboard finds it: ``<stem>.<kind>.json`` beside each
     session of the pair (the catalog then lists both drives as processed, and the
     identification and diagnosis pages show it for either)."""
     from fielddiag.catalog import result_path
 
     text = json.dumps(result, indent=1)
-    written = []
     for session in sessions:
-        path = result_path(session, kind)
-        path.write_text(text, encoding="utf-8")
-        written.append(path)
-    return written
+        result_path(session, kind).write_text(text, encoding="utf-8")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -148,10 +144,7 @@ def run(args: argparse.Namespace) -> int:
     print("2/4 identifying sprung mass, stiffness and damping")
     ident = identify_sessions(before, after, added_mass_kg=args.added_mass)
     print("    " + ident.summary().replace("\n", "\n    "))
-    ident.to_json(run_dir / "identify.json")
-    ident_dict = ident.to_dict()
-    ident_dict.setdefault("added_mass_kg", args.added_mass)
-    _store_beside_sessions(ident_dict, "identify", [before, after])
+    _store_beside_sessions(ident.to_dict(), "identify", [before, after])
     write_identify_plots(ident, run_dir / "plots")
 
     print("3/4 diagnosing: where does the linear model miss, and why?")
@@ -161,7 +154,6 @@ def run(args: argparse.Namespace) -> int:
 
     diag = diagnose_sessions([before, after], added_mass_kg=args.added_mass)
     out = diag.to_dict()
-    (run_dir / "diagnose.json").write_text(json.dumps(out, indent=2))
     _store_beside_sessions({"session_paths": [before.name, after.name], **out}, "diagnose",
                            [before, after])
     write_diagnosis_plots(diag, run_dir / "plots")
@@ -170,9 +162,8 @@ def run(args: argparse.Namespace) -> int:
         "    (the demo car has dry friction of "
         f"{DEMO_EFFECTS[0][1]['friction_force_n']:g} N in its strut)"
     )
-    print(f"    results: {run_dir / 'identify.json'}, {run_dir / 'diagnose.json'}, "
-          f"plots in {run_dir / 'plots'}; for the dashboard also beside each drive "
-          "(before.identify.json, before.diagnose.json...)")
+    print(f"    results beside each drive in {run_dir} (before.identify.json, "
+          f"before.diagnose.json...), plots in {run_dir / 'plots'}")
     if args.no_serve:
         print("4/4 dashboard skipped (--no-serve); start it with "
               f"`fielddiag serve --root {Path(args.out)}`")
