@@ -258,7 +258,9 @@ def _check_radar_bus_decodes_with_the_adas_dbc(frames: np.ndarray) -> None:
         # or decoded from the wrong bytes
         assert np.all(np.diff(count) % 256 == 1)
         t = sig[f"count{k}"][0]
-        assert t[0] < 0.01 and t[-1] > 59.9 and np.all(np.diff(t) > 0)
+        # the whole minute of the log, in order (where it starts on the session clock
+        # depends on when the recorder started: a few ms, more on a busy machine)
+        assert t[0] < 0.5 and t[-1] - t[0] > 59.8 and np.all(np.diff(t) > 0)
     # plausible radar targets: the tracks flagged valid, within the sensor's range
     valid = np.concatenate([sig[f"valid{k}"][1] == 1 for k in tracks])
     dist, lat, rel = (
