@@ -16,16 +16,20 @@ _MODEL_LABELS = (  # key suffix -> (name, unit); the longest suffix that fits wi
 )
 
 
+def model_parameter(key: str) -> tuple[str, str]:
+    """Readable name and unit of a key of ``linear_model``/``augmented_model``:
+    ``suspension_stiffness_n_per_m_per_kg`` -> ("suspension stiffness", "N/m per kg")."""
+    for suffix, label, unit in _MODEL_LABELS:
+        if key.endswith(suffix):
+            return label or key[: -len(suffix)].replace("_", " "), unit
+    return key.replace("_", " "), ""
+
+
 def _fmt_model(model: dict) -> str:
     """``sprung mass 379.7 kg, suspension stiffness 2.397e+04 N/m, ...``"""
     parts = []
     for key, value in model.items():
-        name, unit = key.replace("_", " "), ""
-        for suffix, label, u in _MODEL_LABELS:
-            if key.endswith(suffix):
-                name = label or key[: -len(suffix)].replace("_", " ")
-                unit = u
-                break
+        name, unit = model_parameter(key)
         parts.append(f"{name} {value:.4g} {unit}".rstrip())
     return ", ".join(parts)
 

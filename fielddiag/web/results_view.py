@@ -493,6 +493,30 @@ def _same_drive(window_session: Any, fit_session: str) -> bool:
     return fit_session == label or fit_session.startswith(label + "[")
 
 
+def _linear_parameters_table(result: Mapping[str, Any]) -> None:
+    """The linear part as the linear model alone fitted it and refitted with the findings
+    (what the missing physics was hiding), when the result holds both."""
+    from fielddiag.diagnose.report import model_parameter
+
+    alone, refit = result.get("linear_model"), result.get("augmented_model")
+    if not (isinstance(alone, Mapping) and isinstance(refit, Mapping)) or not refit:
+        return
+    if result.get("verdict") == "adequate":
+        return
+    rows = []
+    for key, value in refit.items():
+        name, unit = model_parameter(key)
+        rows.append({"k": f"{name} [{unit}]" if unit else name,
+                     "alone": _fmt(alone.get(key), 4), "refit": _fmt(value, 4)})
+    ui.label("Linear part of the model: the linear model alone, and refitted with the "
+             "findings").classes("text-base font-semibold")
+    ui.table(columns=[{"name": "k", "label": "parameter", "field": "k", "align": "left"},
+                      {"name": "alone", "label": "linear model alone", "field": "alone"},
+                      {"name": "refit", "label": "with the findings", "field": "refit"}],
+             rows=rows, row_key="k").props("dense flat bordered").classes("max-w-xl").mark(
+        "linear-parameters")
+
+
 def render_diagnosis(result: Mapping[str, Any], recording_view=None) -> None:
     """Verdict, findings with their explanation, where the mismatch lives (time windows,
     band, region), and the fit before/after on held-out data.
@@ -541,6 +565,7 @@ def render_diagnosis(result: Mapping[str, Any], recording_view=None) -> None:
                           {"name": "val", "label": "held-out data", "field": "val"}],
                  rows=rows, row_key="k").props("dense flat bordered").classes(
             "max-w-xl").mark("fit-metrics")
+    _linear_parameters_table(result)
 
     where = mismatch_location(result)
     fits = _fit_series(result)

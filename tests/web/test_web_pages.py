@@ -316,6 +316,13 @@ async def test_diagnose_page_runs_the_diagnosis(dashboard_user, sessions_root: P
     await user.should_see(stored["findings"][0]["explanation"])
     rows = {r["k"]: r for r in _the(user, "fit-metrics").rows}
     assert float(rows["with the findings"]["val"]) < float(rows["linear model"]["val"])
+    # one drive: the linear part per kg, alone and refitted with the friction
+    params = {r["k"]: r for r in _the(user, "linear-parameters").rows}
+    k_key = "suspension_stiffness_n_per_m_per_kg"
+    k_row = params["suspension stiffness [N/m per kg]"]
+    assert float(k_row["refit"]) == pytest.approx(stored["augmented_model"][k_key], rel=1e-3)
+    assert float(k_row["alone"]) == pytest.approx(stored["linear_model"][k_key], rel=1e-3)
+    assert len(params) == len(stored["augmented_model"])
     await user.should_see("diagnosis done")
     assert_diagnosis_plots(user, stored)
 
