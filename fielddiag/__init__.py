@@ -2,6 +2,10 @@
 
 from importlib.metadata import PackageNotFoundError, version
 
+from fielddiag.cachedir import configure_numba_cache
+
+configure_numba_cache()  # before anything imports numba: never cache inside the package
+
 try:
     __version__ = version("fielddiag")
 except PackageNotFoundError:  # running from a source tree that is not installed

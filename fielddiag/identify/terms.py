@@ -474,8 +474,11 @@ def _kernel_dir() -> Path | None:
     env = os.environ.get("FIELDDIAG_KERNEL_CACHE")
     if env == "":
         return None
-    base = Path(env) if env else Path(os.environ.get("XDG_CACHE_HOME")
-                                      or Path.home() / ".cache") / "fielddiag" / "kernels"
+    if not env:
+        from fielddiag.cachedir import cache_dir
+
+        return cache_dir("kernels")
+    base = Path(env)
     try:
         base.mkdir(parents=True, exist_ok=True)
         probe = base / f".probe-{os.getpid()}"
