@@ -24,10 +24,10 @@ import glob
 import os
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
-from datetime import UTC, datetime
 from pathlib import Path
 
 from fielddiag.errors import FieldDiagError
+from fielddiag.pairs import MAX_APART_H, DriveHeader, find_partner
 
 SESSION_SUFFIXES = (".h5", ".hdf5")
 MANIFEST_NAME = "fielddiag-manifest.csv"
@@ -44,29 +44,8 @@ __all__ = [
 ]
 
 
-@dataclass(frozen=True)
-class SessionHeader:
-    """What pairing needs from a session's header; ``error`` is set if it is unreadable."""
-
-    path: Path
-    vehicle: str = ""
-    corner: str = ""
-    added_mass_kg: float = 0.0
-    created: str = ""
-    error: str = ""
-
-    @property
-    def created_unix_s(self) -> float | None:
-        """``created`` as seconds since 1970 (None when missing or not ISO 8601)."""
-        if not self.created:
-            return None
-        try:
-            dt = datetime.fromisoformat(self.created.replace("Z", "+00:00"))
-        except ValueError:
-            return None
-        if dt.tzinfo is None:
-            dt = dt.replace(tzinfo=UTC)
-        return dt.timestamp()
+#: What pairing needs from a session's header (the one definition is in fielddiag.pairs).
+SessionHeader = DriveHeader
 
 
 @dataclass(frozen=True)
@@ -202,17 +181,11 @@ def read_manifest(path: str | os.PathLike) -> list[tuple[Path, Path, float | Non
         raise FieldDiagError(f"manifest {path} is not a readable CSV: {exc}") from exc
 
 
-def _hours_apart(a: SessionHeader, b: SessionHeader) -> float:
-    """Hours between two recordings (inf when either time is unknown)."""
-    ta, tb = a.created_unix_s, b.created_unix_s
-    return abs(ta - tb) / 3600.0 if ta is not None and tb is not None else float("inf")
-
-
 def pair_sessions(
     headers: Sequence[SessionHeader],
     manifests: Sequence[str | os.PathLike] = (),
     *,
-    max_apart_h: float = 24.0,
+    max_apart_h: float = MAX_APART_H,
 ) -> Pairing:
     """Pair before/after drives by manifest first, then by metadata (see module doc).
 
@@ -255,30 +228,17 @@ def pair_sessions(
             groups.setdefault((h.vehicle.strip().lower(), h.corner.strip().lower()),
                               []).append(h)
     for _group, members in sorted(groups.items()):
-        befores = [h for h in members if h.added_mass_kg == 0]
-        afters = [h for h in members if h.added_mass_kg > 0]
         paired_befores: set[Path] = set()
-        for a in afters:
-            if not befores:
-                result.unpaired.append((a.path, f"no drive without added mass for vehicle "
-                                        f"{a.vehicle or '?'!r}, corner {a.corner or '?'!r}"))
+        for a in (h for h in members if h.is_after):
+            best, why = find_partner(a, members, max_apart_h=max_apart_h)
+            if best is None:
+                result.unpaired.append((a.path, why))
                 continue
-            best = min(befores, key=lambda b, a=a: _hours_apart(a, b))
-            apart_h = _hours_apart(a, best)
-            if apart_h == float("inf") and len(befores) > 1:
-                result.unpaired.append((a.path, "several drives without added mass and no "
-                                        "recording times to choose between them; pair them "
-                                        "in a manifest"))
-            elif apart_h != float("inf") and apart_h > max_apart_h:
-                result.unpaired.append((a.path, f"the closest drive without added mass "
-                                        f"({best.path.name}) is more than {max_apart_h:g} h "
-                                        "apart; pair them in a manifest if they belong together"))
-            else:  # within the window, or the only candidate when times are unknown
-                paired_befores.add(best.path)
-                result.pairs.append(Pair(best.path, a.path, a.added_mass_kg - best.added_mass_kg,
-                                         a.vehicle, a.corner))
-        for b in befores:
-            if b.path not in paired_befores:
+            paired_befores.add(best.path)
+            result.pairs.append(Pair(best.path, a.path, a.added_mass_kg - best.added_mass_kg,
+                                     a.vehicle, a.corner))
+        for b in members:
+            if not b.is_after and b.path not in paired_befores:
                 result.unpaired.append((b.path, "no drive with added mass to pair it with"))
     result.pairs.sort(key=lambda p: (str(p.before), str(p.after)))
     result.unpaired.sort()

@@ -986,8 +986,12 @@ def diagnose_sessions(
     paths = [Path(p) for p in paths]
     if len(paths) == 1:
         return diagnose_drives([read_drive(paths[0], "drive", 0.0)], progress=progress, **kw)
+    from fielddiag.pairs import check_pair_files
+
+    pair = check_pair_files(paths[0], paths[1], added_mass_kg)
     before = read_drive(paths[0], "before")
     after = read_drive(paths[1], "after")
-    if added_mass_kg is not None:
-        after.added_mass_kg = before.added_mass_kg + float(added_mass_kg)
-    return diagnose_drives([before, after], progress=progress, **kw)
+    after.added_mass_kg = before.added_mass_kg + pair.added_mass_kg
+    result = diagnose_drives([before, after], progress=progress, **kw)
+    result.warnings[:0] = [data_checks.DataWarning("pair", w) for w in pair.warnings]
+    return result

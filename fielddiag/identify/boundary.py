@@ -495,3 +495,109 @@ def route_agreement(a: RouteEstimate, b: RouteEstimate) -> dict[str, float]:
         d = a.theta[i] - b.theta[i]
         out[name] = float(abs(d) / s) if s > 0 else (0.0 if d == 0 else float("inf"))
     return out
+
+
+# ---------------------------------------------------------------------------------------
+# Do the two drives belong together?
+# ---------------------------------------------------------------------------------------
+
+
+def _fit_ratios(lines: SessionLines, start: np.ndarray) -> np.ndarray:
+    """``[K2/M2, C2/M2]`` of one session alone (its mass set to 1, K3 held at 0).
+
+    The errors-in-variables residuals do not change when theta is scaled, so one session
+    fixes the ratios to the mass (DESIGN.md) and nothing else.
+    """
+    one = SessionLines(lines.freq_hz, lines.gxx, lines.gyy, lines.gxy, lines.n_averages,
+                       lines.noise_x, lines.noise_y, 0.0)
+    chol = [one._cholesky()]
+    scale = np.maximum(np.abs(start), 1e-9)
+
+    def fun(p: np.ndarray) -> np.ndarray:
+        return _ml_residuals(np.array([1.0, p[0] * scale[0], p[1] * scale[1], 0.0]), [one],
+                             chol)
+
+    res = optimize.least_squares(fun, np.ones(2), method="lm", xtol=1e-10, ftol=1e-10,
+                                 max_nfev=200)
+    return res.x * scale
+
+
+@dataclass
+class PairConsistency:
+    """The sprung mass implied by each drive's own ratios, from stiffness and from damping.
+
+    With ``k = K2/M2`` and ``c = C2/M2`` of the drive before and after adding ``dM``, the
+    stiffness implies ``M2 = dM k_after / (k_before - k_after)`` and the damping
+    ``M2 = dM c_after / (c_before - c_after)``. One corner of one car, with the mass added
+    and nothing else changed, gives the same M2 both ways (within their std); drives of
+    different cars or corners, swapped drives, or a suspension whose damping is not linear
+    (friction: its equivalent damping depends on the amplitude) do not.
+    """
+
+    ratios_before: tuple[float, float]
+    ratios_after: tuple[float, float]
+    mass_from_stiffness_kg: float
+    mass_from_stiffness_std_kg: float
+    mass_from_damping_kg: float
+    mass_from_damping_std_kg: float
+    stiffness_drop_z: float  # (k_before - k_after) / std: positive when the mass was added
+
+    @property
+    def disagreement_z(self) -> float:
+        """|M2 from stiffness - M2 from damping| in units of their combined std."""
+        s = math.hypot(self.mass_from_stiffness_std_kg, self.mass_from_damping_std_kg)
+        d = abs(self.mass_from_stiffness_kg - self.mass_from_damping_kg)
+        return d / s if s > 0 else float("inf")
+
+
+def pair_consistency(
+    blocks: Sequence[BlockCrossSpectra],
+    added_masses_kg: Sequence[float],
+    band_hz: tuple[float, float],
+    noise: Sequence[tuple[float, float]],
+    theta: np.ndarray,
+) -> PairConsistency:
+    """Fit each drive's ratios alone and compare the masses they imply (see the class).
+
+    Parameters
+    ----------
+    blocks : two BlockCrossSpectra
+        Before and after, wheel = x, body = y.
+    added_masses_kg : two floats
+        0 and the added mass [kg].
+    band_hz : (float, float)
+        Lines used [Hz].
+    noise : two (noise_x, noise_y)
+        White-noise densities of each drive's wheel and body channels.
+    theta : ndarray
+        The joint fit ``[M2, K2, C2, K3]``, to start from.
+
+    Returns
+    -------
+    PairConsistency
+        Standard deviations from a delete-a-block jackknife in each drive.
+    """
+    dm = float(added_masses_kg[1] - added_masses_kg[0])
+    starts = [np.array([theta[1], theta[2]]) / (theta[0] + m) for m in added_masses_kg]
+    full, reps = [], []
+    for blk, (nx, ny), start in zip(blocks, noise, starts, strict=True):
+        lines = SessionLines.from_spectra(blk.total(), band_hz, nx, ny, 0.0)
+        r = _fit_ratios(lines, start)
+        full.append(r)
+        reps.append(np.array([
+            _fit_ratios(SessionLines.from_spectra(blk.leave_out(b), band_hz, nx, ny, 0.0), r)
+            for b in range(blk.n_blocks)]))
+
+    def masses(rb: np.ndarray, ra: np.ndarray) -> np.ndarray:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.array([dm * ra[0] / (rb[0] - ra[0]), dm * ra[1] / (rb[1] - ra[1]),
+                             rb[0] - ra[0]])
+
+    value = masses(full[0], full[1])
+    groups = [np.array([masses(r, full[1]) for r in reps[0]]),
+              np.array([masses(full[0], r) for r in reps[1]])]
+    std = np.sqrt(_jackknife(value, groups))
+    return PairConsistency(
+        (float(full[0][0]), float(full[0][1])), (float(full[1][0]), float(full[1][1])),
+        float(value[0]), float(std[0]), float(value[1]), float(std[1]),
+        float(value[2] / std[2]) if std[2] > 0 else float("inf"))

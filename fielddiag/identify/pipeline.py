@@ -40,6 +40,7 @@ from fielddiag.identify.boundary import (
     RouteEstimate,
     frequency_route,
     model_transmissibility,
+    pair_consistency,
     prepare_time_piece,
     route_agreement,
     time_route,
@@ -277,6 +278,35 @@ def _noise_result(n: SessionNoise, fs: float) -> NoiseResult:
         notes=list(n.notes))
 
 
+#: The most mass a technician can add on one corner's body [kg] and the longest drive
+#: [s] worth asking for: advice beyond these is not advice.
+PRACTICAL_ADDED_MASS_KG = 150.0
+PRACTICAL_DRIVE_S = 30 * 60.0
+
+
+def _resolution_advice(dm: float, duration_s: float, rel: float, cfg: IdentifyConfig,
+                       diagnose_hint: str) -> str:
+    """What to record so that the mass std falls to the target, or where to look instead.
+
+    The std of the mass falls about in proportion to the added mass and to the square root
+    of the drive length; only advice a technician can follow is given.
+    """
+    target = cfg.target_relative_std_mass
+    need_mass = dm * rel / target if math.isfinite(rel) else float("inf")
+    need_time = duration_s * (rel / target) ** 2 if math.isfinite(rel) else float("inf")
+    options = []
+    if need_mass <= PRACTICAL_ADDED_MASS_KG:
+        options.append(f"add about {need_mass:.0f} kg instead of {dm:g} kg")
+    if need_time <= PRACTICAL_DRIVE_S:
+        options.append(f"record about {need_time / 60:.0f} min per drive")
+    if options:
+        return (f"For a {100 * target:.0f} % std " + " or ".join(options)
+                + f", or drive on a rougher road; if that does not help, {diagnose_hint}.")
+    return ("No practical amount of added mass or drive length would fix this, so the linear "
+            f"model probably does not describe these two drives: {diagnose_hint}, and check "
+            "that both drives are of the same car corner.")
+
+
 @single_threaded_blas
 def identify_recordings(
     before: Recording,
@@ -440,26 +470,40 @@ def identify_recordings(
     k3_std = float(k3_test.get("std", 0.0))
 
     m2, k2 = main.theta[0], main.theta[1]
+    step(0.6, "do the two drives belong together")
+    pair = pair_consistency(blocks, masses, band, noise_total, main.theta)
+    diagnose_hint = ("run `fielddiag diagnose` on the same two drives to see what the linear "
+                     "model leaves out")
+    if pair.stiffness_drop_z < -3.0:
+        raise InsufficientDataError(
+            f"the body resonance rose after adding {dm:g} kg (stiffness per unit mass "
+            f"{pair.ratios_before[0]:.4g} before, {pair.ratios_after[0]:.4g} 1/s2 after): the "
+            "drives look swapped or are not of the same car corner; give the drive as the car "
+            "is first, then the drive with the added mass")
+    mk, mc = pair.mass_from_stiffness_kg, pair.mass_from_damping_kg
+    if pair.disagreement_z > 4.0 and not (mk > 0 and mc > 0 and 2 / 3 < mk / mc < 3 / 2):
+        warnings.append(
+            f"the two drives do not behave like one corner with {dm:g} kg added: their "
+            f"stiffness implies a sprung mass of {mk:.4g} +- {pair.mass_from_stiffness_std_kg:.2g}"
+            f" kg, their damping {mc:.4g} +- {pair.mass_from_damping_std_kg:.2g} kg. Either "
+            "they are not of the same car corner, or the damping is not linear (dry friction "
+            f"changes the equivalent damping with the amplitude): {diagnose_hint}")
     if not (m2 > 0 and k2 > 0 and np.all(np.isfinite(main.theta))):
         raise InsufficientDataError(
             f"the fit gives no physical answer (M2 {m2:.4g} kg, K2 {k2:.4g} N/m): the added mass"
-            f" of {dm:g} kg does not shift the transmissibility measurably. Add more mass "
-            f"(10-30 % of the corner load), record longer, or drive on a rougher road")
+            f" of {dm:g} kg does not shift the transmissibility measurably, or the linear model "
+            f"does not describe these drives. Add more mass (10-30 % of the corner load), "
+            f"record longer or on a rougher road, or {diagnose_hint}")
     rel = main.std[0] / m2
     if not math.isfinite(rel) or rel > cfg.max_relative_std_mass:
-        need_mass = dm * rel / cfg.target_relative_std_mass
-        need_time = duration * (rel / cfg.target_relative_std_mass) ** 2
         raise InsufficientDataError(
             f"the sprung mass cannot be resolved: {m2:.4g} +- {main.std[0]:.3g} kg "
             f"({100 * rel:.0f} % std, more than {100 * cfg.max_relative_std_mass:.0f} %). "
-            f"The {dm:g} kg added mass shifts the body resonance too little for this noise and "
-            f"drive length. For a 2 % std add about {need_mass:.0f} kg, or record about "
-            f"{need_time / 60:.0f} min per drive, or drive on a rougher road")
+            + _resolution_advice(dm, duration, rel, cfg, diagnose_hint))
     if rel > cfg.target_relative_std_mass:
         warnings.append(
-            f"the sprung mass is uncertain by {100 * rel:.1f} % (std): more added mass "
-            f"(about {dm * rel / cfg.target_relative_std_mass:.0f} kg for 2 %), a longer or "
-            "rougher drive would narrow it")
+            f"the sprung mass is uncertain by {100 * rel:.1f} % (std). "
+            + _resolution_advice(dm, duration, rel, cfg, diagnose_hint))
     warnings += main.notes
 
     # time route
@@ -637,8 +681,17 @@ def identify_sessions(
     config: IdentifyConfig | None = None,
     progress: Callable[[float, str], None] | None = None,
 ) -> IdentificationResult:
-    """:func:`identify_recordings` on two session files (channels found by role)."""
+    """:func:`identify_recordings` on two session files (channels found by role).
+
+    The two files are first checked as a pair (:func:`fielddiag.pairs.check_pair`): the same
+    file twice, swapped drives or different vehicles are refused, doubtful pairs warned.
+    """
+    from fielddiag.pairs import check_pair_files
+
+    pair = check_pair_files(before_path, after_path, added_mass_kg)
     before = read_recording(before_path, "before")
     after = read_recording(after_path, "after")
-    return identify_recordings(before, after, added_mass_kg, band_hz=band_hz, config=config,
-                               progress=progress)
+    result = identify_recordings(before, after, pair.added_mass_kg, band_hz=band_hz,
+                                 config=config, progress=progress)
+    result.warnings = list(dict.fromkeys([*pair.warnings, *result.warnings]))
+    return result
