@@ -467,6 +467,42 @@ def block_cross_spectra(
                              sxx[keep], syy[keep], sxy[keep], counts[keep])
 
 
+def spectrum_on_grid(freq_hz: np.ndarray, values: np.ndarray, grid_hz: np.ndarray) -> np.ndarray:
+    """Values of a spectrum (real or complex) at other frequencies, by linear interpolation.
+
+    Two drives recorded at slightly different rates (500 and 500.001 Hz) have Welch lines
+    at slightly different frequencies; every before/after comparison puts them on one grid
+    with this. Real and imaginary parts are interpolated separately; outside ``freq_hz``
+    the result is NaN (nothing is extrapolated).
+
+    Parameters
+    ----------
+    freq_hz : ndarray
+        Increasing frequencies of ``values`` [Hz].
+    values : ndarray
+        The spectrum at ``freq_hz`` (same length), real or complex.
+    grid_hz : ndarray
+        Frequencies wanted [Hz].
+
+    Returns
+    -------
+    ndarray
+        ``values`` at ``grid_hz``, of the same kind (real or complex).
+
+    Examples
+    --------
+    >>> spectrum_on_grid(np.array([1.0, 2.0]), np.array([1 + 1j, 3 + 1j]), np.array([1.5]))
+    array([2.+1.j])
+    """
+    f = np.asarray(freq_hz, dtype=float)
+    v = np.asarray(values)
+    g = np.asarray(grid_hz, dtype=float)
+    if np.iscomplexobj(v):
+        return (np.interp(g, f, v.real, left=np.nan, right=np.nan)
+                + 1j * np.interp(g, f, v.imag, left=np.nan, right=np.nan))
+    return np.interp(g, f, v.astype(float), left=np.nan, right=np.nan)
+
+
 def welch_psd(x: np.ndarray, sample_rate_hz: float, segment_s: float) -> tuple[np.ndarray,
                                                                                  np.ndarray]:
     """One-sided PSD by Welch (Hann, 50 % overlap, linear detrend): (freq_hz, psd)."""

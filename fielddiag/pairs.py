@@ -312,3 +312,50 @@ def partner_in(path: str | os.PathLike, sessions: Sequence[str | os.PathLike]
             continue
     partner, why = find_partner(own, cands)
     return partner, own, why
+
+
+def header_of(summary: object) -> DriveHeader:
+    """A :class:`DriveHeader` from anything listing a session (``path``, ``vehicle``,
+    ``corner``, ``added_mass_kg``, ``created``; e.g. the dashboard's catalog entries)."""
+    get = summary.__getattribute__
+    return DriveHeader(Path(str(get("path"))), str(get("vehicle") or ""),
+                       str(get("corner") or ""), float(get("added_mass_kg") or 0.0),
+                       str(get("created") or ""),
+                       float(getattr(summary, "sample_rate_hz", 0.0) or 0.0),
+                       int(getattr(summary, "n_samples", 0) or 0),
+                       error=str(getattr(summary, "error", "") or ""))
+
+
+def pair_of(path: str, listed: Sequence[object]) -> tuple[str, str, float | None, str]:
+    """The before/after pair a listed session belongs to, by the pairing rule.
+
+    Parameters
+    ----------
+    path : str
+        The session as listed (its ``path``).
+    listed : sequence
+        Every listed session (objects as :func:`header_of` takes; a ``batch`` dict with a
+        ``partner`` recorded by ``fielddiag reprocess`` is honoured first).
+
+    Returns
+    -------
+    before, after, added_mass_kg, reason : str, str, float or None, str
+        The pair's paths ("" where none was found, with the reason) and the mass added.
+    """
+    by_path = {str(s.path): s for s in listed}  # type: ignore[attr-defined]
+    me = by_path.get(path)
+    if me is None:
+        return "", "", None, f"{path} is not listed"
+    own = header_of(me)
+    batch = getattr(me, "batch", None) or {}
+    partner = None
+    if batch.get("partner") in by_path:
+        partner = header_of(by_path[batch["partner"]])
+        why = ""
+    else:
+        partner, why = find_partner(own, [header_of(s) for s in listed])
+    if partner is None:
+        return (path, "", None, why) if not own.is_after else ("", path, None, why)
+    before, after = (partner, own) if own.is_after else (own, partner)
+    dm = after.added_mass_kg - before.added_mass_kg
+    return str(before.path), str(after.path), (dm if dm > 0 else None), ""

@@ -741,19 +741,33 @@ class SessionReader:
             return 0
         return int(min(self._file["daq/channels"][c.name].shape[0] for c in self.channels))
 
+    def _signal_span(self) -> tuple[float, float] | None:
+        """(first, last) time of the vehicle signals; None when they hold no samples."""
+        lo, hi = float("inf"), float("-inf")
+        for spec in self.signals:
+            t = self._file["signals"][spec.name]["time_s"]
+            if t.shape[0]:
+                lo, hi = min(lo, float(t[0])), max(hi, float(t[t.shape[0] - 1]))
+        return (lo, hi) if lo <= hi else None
+
     @property
     def start_s(self) -> float:
+        """Time of the first DAQ sample (of the first vehicle signal sample in a session
+        without DAQ samples, e.g. a CAN log)."""
         n = self.n_samples
         if n == 0:
-            return self._t0_s
+            span = self._signal_span()
+            return span[0] if span else self._t0_s
         return float(self._file["daq/time_s"][0]) if self.time_base == "timestamps" else self._t0_s
 
     @property
     def end_s(self) -> float:
-        """Time of the last DAQ sample."""
+        """Time of the last DAQ sample (of the last vehicle signal sample in a session
+        without DAQ samples)."""
         n = self.n_samples
         if n == 0:
-            return self._t0_s
+            span = self._signal_span()
+            return span[1] if span else self._t0_s
         if self.time_base == "timestamps":
             return float(self._file["daq/time_s"][n - 1])
         return self._t0_s + (n - 1) / self.sample_rate_hz
@@ -762,7 +776,9 @@ class SessionReader:
     def duration_s(self) -> float:
         """Span of the DAQ time axis (one sample period more than last minus first)."""
         n = self.n_samples
-        return 0.0 if n == 0 else self.end_s - self.start_s + 1.0 / self.sample_rate_hz
+        if n == 0:  # vehicle signals only: their span
+            return self.end_s - self.start_s
+        return self.end_s - self.start_s + 1.0 / self.sample_rate_hz
 
     # ------------------------------------------------------------------ channels
     def channel(self, name: str) -> ChannelSpec:

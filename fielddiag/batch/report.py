@@ -9,7 +9,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TextIO
 
-from fielddiag.batch.summary import diagnose_text, identify_text
+from fielddiag.batch.summary import diagnose_text, suspension_text
 from fielddiag.batch.task import PairOutcome
 
 __all__ = ["Progress", "format_table", "short_path"]
@@ -106,11 +106,12 @@ def format_table(
 ) -> str:
     """The final table: one line per pair (status, result or reason), then the sessions
     left out."""
-    rows = [("status", "before", "after", "+kg", "identification", "diagnosis", "time")]
+    rows = [("status", "before", "after", "+kg", "suspension", "diagnosis", "time")]
     for o in outcomes:
         status = o.status if o.status != "skipped" else "up to date"
         rows.append((status, short_path(o.before, root), short_path(o.after, root),
-                     f"{o.added_mass_kg:g}", identify_text(_step_summary(o, "identify")),
+                     f"{o.added_mass_kg:g}", suspension_text(_step_summary(o, "identify"),
+                                     _step_summary(o, "diagnose")),
                      diagnose_text(_step_summary(o, "diagnose")),
                      "-" if o.status == "skipped" else f"{o.wall_s:.1f} s"))
     widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]

@@ -6,16 +6,35 @@ import os
 from pathlib import Path
 from typing import Any
 
-__all__ = ["batch_entries", "diagnose_text", "identify_text"]
+__all__ = ["batch_entries", "diagnose_text", "identify_text", "suspension_text"]
 
 
-def identify_text(summary: dict[str, Any]) -> str:
-    """``M 381 kg, K 24.1 kN/m, C 1803 Ns/m`` from an identification summary ("-" if none)."""
+def _pm(value: float, std: float | None, scale: float = 1.0, spec: str = ".0f") -> str:
+    std_text = "?" if std is None else f"{std / scale:{spec}}"
+    return f"{value / scale:{spec}}+-{std_text}"
+
+
+def identify_text(summary: dict[str, Any], model: str = "linear") -> str:
+    """``M 381+-1 kg, K 24.1+-0.1 kN/m, C 1803+-4 Ns/m (linear)`` from a summary with
+    ``sprung_mass_kg``, ``stiffness_n_per_m``, ``damping_ns_per_m`` and their ``*_std_*``
+    ("-" if none); ``model`` says which model the values come from."""
     m, k, c = (summary.get(key) for key in ("sprung_mass_kg", "stiffness_n_per_m",
                                              "damping_ns_per_m"))
     if m is None or k is None or c is None:
         return "-"
-    return f"M {m:.0f} kg, K {k / 1e3:.1f} kN/m, C {c:.0f} Ns/m"
+    return (f"M {_pm(m, summary.get('sprung_mass_std_kg'))} kg, "
+            f"K {_pm(k, summary.get('stiffness_std_n_per_m'), 1e3, '.1f')} kN/m, "
+            f"C {_pm(c, summary.get('damping_std_ns_per_m'))} Ns/m ({model})")
+
+
+def suspension_text(identify: dict[str, Any], diagnose: dict[str, Any]) -> str:
+    """The pair's headline values: refitted with the diagnosis's findings when it has some
+    (the linear identification is biased by what it leaves out), else the identification's.
+    """
+    corrected = (diagnose or {}).get("corrected") or {}
+    if corrected:
+        return identify_text(corrected, "with the findings")
+    return identify_text(identify or {})
 
 
 def diagnose_text(summary: dict[str, Any]) -> str:
@@ -51,10 +70,14 @@ def batch_entries(catalog_path: str | os.PathLike, root: str | os.PathLike
     out: dict[str, dict[str, Any]] = {}
     for row in catalog.rows():
         parts = []
-        if row.get("identify_status") == "done":
-            parts.append(identify_text(row.get("identify_summary") or {}))
-        if row.get("diagnose_status") == "done":
-            parts.append(diagnose_text(row.get("diagnose_summary") or {}))
+        ident = (row.get("identify_summary") or {}
+                 if row.get("identify_status") == "done" else {})
+        diag = (row.get("diagnose_summary") or {}
+                if row.get("diagnose_status") == "done" else {})
+        if ident or diag:
+            parts.append(suspension_text(ident, diag))
+        if diag:
+            parts.append(diagnose_text(diag))
         results = {s: rel(row[f"{s}_json"]) for s in STEPS
                    if row.get(f"{s}_status") == "done" and row.get(f"{s}_json")}
         b, a = rel(row["before"]), rel(row["after"])

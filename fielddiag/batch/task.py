@@ -155,11 +155,23 @@ def summarise_identify(data: dict[str, Any]) -> dict[str, Any]:
 
 def summarise_diagnose(data: dict[str, Any]) -> dict[str, Any]:
     """The catalog's summary of a diagnosis result (as JSON)."""
-    return {
+    out: dict[str, Any] = {
         "verdict": data.get("verdict", ""),
         "findings": [f.get("effect", "") for f in data.get("findings", [])],
         "warnings": [w.get("kind", "") for w in data.get("warnings", [])],
     }
+    aug, std = data.get("augmented_model") or {}, data.get("augmented_model_std") or {}
+    if out["findings"] and "sprung_mass_kg" in aug:  # the linear part refitted with them
+        out["corrected"] = {
+            f"{name}_{unit}": aug.get(key) for key, name, unit in _CORRECTED}
+        out["corrected"].update({
+            f"{name}_std_{unit}": std.get(key) for key, name, unit in _CORRECTED})
+    return out
+
+
+_CORRECTED = (("sprung_mass_kg", "sprung_mass", "kg"),
+              ("suspension_stiffness_n_per_m", "stiffness", "n_per_m"),
+              ("suspension_damping_ns_per_m", "damping", "ns_per_m"))
 
 
 def _identify(job: PairJob) -> dict[str, Any]:

@@ -482,7 +482,9 @@ class Diagnosis:
             "findings": findings,
             "warnings": warnings,
             "linear_model": _linear_summary(base.values, self.mode),
+            "linear_model_std": _linear_summary(base.std, self.mode),
             "augmented_model": _linear_summary(aug.values, self.mode),
+            "augmented_model_std": _linear_summary(aug.std, self.mode),
             "band_hz": list(self.band_hz),
             "candidates": [
                 {
@@ -620,6 +622,8 @@ def _transmissibility_warnings(drives: Sequence[Drive]) -> list[data_checks.Data
     """Gain change between drives and channel time offset, from the identification's
     transmissibilities against its fitted linear model."""
     from fielddiag.identify import Recording, identify_recordings
+    from fielddiag.identify.pipeline import PAIR_INCONSISTENT
+    from fielddiag.pairs import PairError
 
     recs = [
         Recording(
@@ -635,6 +639,8 @@ def _transmissibility_warnings(drives: Sequence[Drive]) -> list[data_checks.Data
         ident = identify_recordings(
             recs[0], recs[1], drives[1].added_mass_kg - drives[0].added_mass_kg
         )
+    except PairError:
+        raise  # swapped drives or not one corner: no diagnosis can be made of them
     except FieldDiagError as exc:
         # Only a lack of excitation is a problem of the data; the linear identification
         # also refuses when the physics is not linear, which is the diagnosis's own subject.
@@ -666,6 +672,8 @@ def _transmissibility_warnings(drives: Sequence[Drive]) -> list[data_checks.Data
         data_checks.check_gain_change(trs, band, added_mass_kg=dm, start=start),
         data_checks.check_time_offset(trs, band),
     ]
+    found += [data_checks.DataWarning("pair_inconsistent", w) for w in ident.warnings
+              if w.startswith(PAIR_INCONSISTENT)]
     return [w for w in found if w is not None]
 
 
@@ -768,8 +776,11 @@ def _unexplained(
     share = gain
     if baseline is not None and baseline is not fit:
         share = gain * fit.candidate.mse_validation / baseline.candidate.mse_validation
-    say(f"  structure left in the residual: {100 * gain:.1f} % of it (t = {t:.1f}), "
-        f"{100 * share:.1f} % of the linear model's misfit")
+    if gain > 0:
+        say(f"  structure left in the residual: {100 * gain:.1f} % of it (t = {t:.1f}), "
+            f"{100 * share:.1f} % of the linear model's misfit")
+    else:  # the map of the fitted part predicts the held-out residual no better than zero
+        say("  structure left in the residual: none found")
     if t < 4.0 or gain < 0.08 or share < UNEXPLAINED_MIN_SHARE_OF_LINEAR_MISFIT:
         return None, full_map
     reg = dmap.region()

@@ -3,8 +3,15 @@
 from __future__ import annotations
 
 
-def _fmt_params(params: dict[str, float]) -> str:
-    return ", ".join(f"{k} = {v:.4g}" for k, v in params.items())
+def _pm(value: float, std: float | None, spec: str = ".4g") -> str:
+    """``60.21 +- 0.76`` (the std as "?" where none was estimated)."""
+    s = "?" if std is None or std != std else f"{std:.2g}"
+    return f"{value:{spec}} +- {s}"
+
+
+def _fmt_params(params: dict[str, float], stds: dict[str, float] | None = None) -> str:
+    stds = stds or {}
+    return ", ".join(f"{k} = {_pm(v, stds.get(k))}" for k, v in params.items())
 
 
 _MODEL_LABELS = (  # key suffix -> (name, unit); the longest suffix that fits wins
@@ -25,12 +32,13 @@ def model_parameter(key: str) -> tuple[str, str]:
     return key.replace("_", " "), ""
 
 
-def _fmt_model(model: dict) -> str:
-    """``sprung mass 379.7 kg, suspension stiffness 2.397e+04 N/m, ...``"""
+def _fmt_model(model: dict, stds: dict | None = None) -> str:
+    """``sprung mass 379.7 +- 3.1 kg, suspension stiffness 2.397e+04 +- 210 N/m, ...``"""
+    stds = stds or {}
     parts = []
     for key, value in model.items():
         name, unit = model_parameter(key)
-        parts.append(f"{name} {value:.4g} {unit}".rstrip())
+        parts.append(f"{name} {_pm(value, stds.get(key))} {unit}".rstrip())
     return ", ".join(parts)
 
 
@@ -53,7 +61,8 @@ def format_summary(out: dict) -> str:
         )
     for f in out["findings"]:
         conf = f.get("confidence", 0.0)
-        lines.append(f"  * {f['effect']} (confidence {conf:.2f}) {_fmt_params(f['parameters'])}")
+        lines.append(f"  * {f['effect']} (confidence {conf:.2f}) "
+                     f"{_fmt_params(f['parameters'], f.get('std'))}")
         lines.append(f"    {f['explanation']}")
         where = f.get("where") or {}
         if where.get("band_hz"):
@@ -66,21 +75,22 @@ def format_summary(out: dict) -> str:
             )
             lines.append(f"    worst windows: {txt}")
     aug, lin = out.get("augmented_model") or {}, out.get("linear_model") or {}
-    if out["verdict"] != "adequate" and aug and mode != "rig":
-        lines.append("  linear part, fitted with the findings: " + _fmt_model(aug))
-        if lin:
-            lines.append("    (the linear model alone: " + _fmt_model(lin) + ")")
+    aug_std, lin_std = out.get("augmented_model_std") or {}, out.get("linear_model_std") or {}
+    if mode != "rig":
+        if out["verdict"] != "adequate" and aug and out["findings"]:
+            lines.append("  suspension, fitted with the findings: " + _fmt_model(aug, aug_std))
+            if lin:
+                lines.append("    (the linear model alone, biased by what it leaves out: "
+                             + _fmt_model(lin, lin_std) + ")")
+        elif lin:
+            lines.append("  suspension, linear model: " + _fmt_model(lin, lin_std))
     if "parameters" in out and mode == "rig":
         p = out["parameters"]
-        lines.append(
-            "  rig: stiffness {:.4g} {}, damping {:.4g} {}, moving mass {:.3g} kg".format(
-                p["stiffness"]["value"],
-                p["stiffness"]["unit"],
-                p["damping"]["value"],
-                p["damping"]["unit"],
-                p["moving_mass_kg"]["value"],
-            )
-        )
+        lines.append("  rig: " + ", ".join(
+            f"{name} {_pm(p[key]['value'], p[key].get('std'))} {unit}"
+            for key, name, unit in (("stiffness", "stiffness", p["stiffness"]["unit"]),
+                                    ("damping", "damping", p["damping"]["unit"]),
+                                    ("moving_mass_kg", "moving mass", "kg"))))
     for w in out.get("warnings", []):
         lines.append(f"  WARNING ({w['kind']}): {w['message']}")
     return "\n".join(lines)

@@ -316,6 +316,7 @@ class RigDiagnosis:
         if self.unexplained is not None:
             findings.append(self.unexplained)
         lin = {**base.values, **chosen.values}
+        lin_std = {**base.std, **chosen.std}
         return {
             "mode": "rig",
             "verdict": verdict,
@@ -324,14 +325,18 @@ class RigDiagnosis:
             "parameters": {
                 "stiffness": {
                     "value": lin.get("linear_spring.suspension_stiffness_n_per_m"),
+                    "std": lin_std.get("linear_spring.suspension_stiffness_n_per_m"),
                     "unit": unit_k,
                 },
                 "damping": {
                     "value": lin.get("linear_damper.suspension_damping_ns_per_m"),
+                    "std": lin_std.get("linear_damper.suspension_damping_ns_per_m"),
                     "unit": f"{self.data.force_unit} s/{self.data.displacement_unit}",
                 },
-                "moving_mass_kg": {"value": lin["moving_mass_kg"]},
-                "preload": {"value": lin["preload_n"], "unit": self.data.force_unit},
+                "moving_mass_kg": {"value": lin["moving_mass_kg"],
+                                   "std": lin_std.get("moving_mass_kg")},
+                "preload": {"value": lin["preload_n"], "std": lin_std.get("preload_n"),
+                            "unit": self.data.force_unit},
             },
             "findings": findings,
             "candidates": [

@@ -33,6 +33,7 @@ from fielddiag.dsp import (
     CrossSpectra,
     block_cross_spectra,
     contiguous_pieces,
+    spectrum_on_grid,
 )
 from fielddiag.errors import ChannelNotFoundError, InsufficientDataError, SessionError
 from fielddiag.identify.boundary import (
@@ -278,6 +279,9 @@ def _noise_result(n: SessionNoise, fs: float) -> NoiseResult:
         notes=list(n.notes))
 
 
+#: How the warning starts when the two drives do not behave like one corner with the mass
+#: added (the diagnosis passes it on).
+PAIR_INCONSISTENT = "the two drives do not behave like one corner"
 #: The most mass a technician can add on one corner's body [kg] and the longest drive
 #: [s] worth asking for: advice beyond these is not advice.
 PRACTICAL_ADDED_MASS_KG = 150.0
@@ -475,7 +479,9 @@ def identify_recordings(
     diagnose_hint = ("run `fielddiag diagnose` on the same two drives to see what the linear "
                      "model leaves out")
     if pair.stiffness_drop_z < -3.0:
-        raise InsufficientDataError(
+        from fielddiag.pairs import PairError
+
+        raise PairError(
             f"the body resonance rose after adding {dm:g} kg (stiffness per unit mass "
             f"{pair.ratios_before[0]:.4g} before, {pair.ratios_after[0]:.4g} 1/s2 after): the "
             "drives look swapped or are not of the same car corner; give the drive as the car "
@@ -483,7 +489,7 @@ def identify_recordings(
     mk, mc = pair.mass_from_stiffness_kg, pair.mass_from_damping_kg
     if pair.disagreement_z > 4.0 and not (mk > 0 and mc > 0 and 2 / 3 < mk / mc < 3 / 2):
         warnings.append(
-            f"the two drives do not behave like one corner with {dm:g} kg added: their "
+            f"{PAIR_INCONSISTENT} with {dm:g} kg added: their "
             f"stiffness implies a sprung mass of {mk:.4g} +- {pair.mass_from_stiffness_std_kg:.2g}"
             f" kg, their damping {mc:.4g} +- {pair.mass_from_damping_std_kg:.2g} kg. Either "
             "they are not of the same car corner, or the damping is not linear (dry friction "
@@ -547,17 +553,24 @@ def identify_recordings(
     step(0.8, "transmissibility, restoring force and loops")
     theta = main.theta
     trans = []
+    # One frequency grid for every drive (the first drive's plot lines): drives sampled at
+    # slightly different rates have Welch lines at slightly different frequencies.
+    grid = totals[0].freq_hz[_plot_lines(totals[0].freq_hz, band, cfg.max_plot_lines)]
+    grid = grid[grid <= min(sp.freq_hz[-1] for sp in totals)]
     for r, sp, nz, dmass in zip(recs, totals, noises, masses, strict=True):
-        idx = _plot_lines(sp.freq_hz, band, cfg.max_plot_lines)
-        f = sp.freq_hz[idx]
+        f = grid
         hv = hv_transmissibility(sp, nz.wheel_psd_per_hz, nz.body_psd_per_hz)
         coh = sp.coherence
         inb = (sp.freq_hz >= band[0]) & (sp.freq_hz <= band[1])
         peaks = resonance_peaks(sp.freq_hz, hv, band)
+
+        def on_grid(values: np.ndarray, sp: CrossSpectra = sp) -> np.ndarray:
+            return spectrum_on_grid(sp.freq_hz, values, grid)
+
         trans.append(TransmissibilityResult(
             label=r.label, added_mass_kg=dmass, freq_hz=[float(v) for v in f],
-            h1=ComplexSeries.of(sp.h1[idx]), h2=ComplexSeries.of(sp.h2[idx]),
-            hv=ComplexSeries.of(hv[idx]), coherence=[float(v) for v in coh[idx]],
+            h1=ComplexSeries.of(on_grid(sp.h1)), h2=ComplexSeries.of(on_grid(sp.h2)),
+            hv=ComplexSeries.of(on_grid(hv)), coherence=[float(v) for v in on_grid(coh)],
             model=ComplexSeries.of(model_transmissibility(theta, f, dmass)),
             peaks=[Peak(fp, mp) for fp, mp in peaks],
             mean_coherence_in_band=float(np.mean(coh[inb])), n_averages=sp.n_averages,

@@ -33,20 +33,31 @@ def plot_worst_windows(diag, path: str | os.PathLike) -> Path:
             {"session": lab, "start_s": float(t[0]), "end_s": float(t[0]) + 6.0, "rms_ratio": 1.0}
             for lab, (t, _, _) in base_runs.items()
         ]
-    fig = Figure(figsize=(10, 3.0 * len(wins) + 1.0), layout="constrained")
-    axes = fig.subplots(len(wins), 1, squeeze=False)[:, 0]
+    # per window a fit axis and, under it, the residual (recording minus model): where
+    # recording and model overlap, the miss is only visible there
+    fig = Figure(figsize=(10, 4.2 * len(wins) + 1.0), layout="constrained")
+    grid = fig.subplots(2 * len(wins), 1, squeeze=False,
+                        gridspec_kw={"height_ratios": [3, 1.3] * len(wins)})[:, 0]
+    axes, res_axes = grid[0::2], grid[1::2]
     labels = {d.label: d for d in diag.drives}
-    for ax, w in zip(axes, wins, strict=False):
+    for ax, rax, w in zip(axes, res_axes, wins, strict=False):
         lab = w["session"]
         t, m, s = base_runs[lab]
         sel = (t >= w["start_s"]) & (t <= w["end_s"])
         ax.plot(t[sel], m[sel], color="k", lw=1.2, label="recorded")
         ax.plot(t[sel], s[sel], color="tab:orange", lw=1.0, label="linear model")
+        rax.plot(t[sel], (m - s)[sel], color="tab:orange", lw=1.0, label="linear model")
         if diag.chosen is not diag.baseline:
-            ta, _, sa = aug_runs[lab]
+            ta, ma, sa = aug_runs[lab]
             sel_a = (ta >= w["start_s"]) & (ta <= w["end_s"])
             name = " + ".join(diag.chosen.effects)
             ax.plot(ta[sel_a], sa[sel_a], color="tab:green", lw=1.0, ls="--", label=f"with {name}")
+            rax.plot(ta[sel_a], (ma - sa)[sel_a], color="tab:green", lw=1.0, ls="--",
+                     label=f"with {name}")
+        rax.axhline(0.0, color="k", lw=0.6)
+        rax.set_ylabel("residual (m/s²)")
+        rax.grid(alpha=0.3)
+        rax.legend(loc="upper right", fontsize=7)
         added = labels[lab].added_mass_kg if lab in labels else 0.0
         what = (
             "the mismatch is spread evenly, no window stands out"
@@ -60,7 +71,7 @@ def plot_worst_windows(diag, path: str | os.PathLike) -> Path:
         ax.set_ylabel("body accel. (m/s²)")
         ax.grid(alpha=0.3)
         ax.legend(loc="upper right", fontsize=8)
-    axes[-1].set_xlabel("time in the drive (s)")
+        rax.set_xlabel("time in the drive (s)")
     out = diag.to_dict()
     fig.suptitle(
         f"Verdict: {out['verdict']} — held-out NRMSE linear "
@@ -156,7 +167,9 @@ def write_diagnosis_plots(diag, folder: str | os.PathLike) -> list[Path]:
         plot_worst_windows(diag, out / "diagnosis_windows.png"),
         plot_residual_spectrum(diag, out / "diagnosis_residual_spectrum.png"),
     ]
-    if diag.departure is not None:
+    # the departure map only where a finding locates something (on a car judged adequate
+    # an outlined region reads as a fault)
+    if diag.departure is not None and diag.to_dict()["findings"]:
         unit = "N" if diag.mode == "pair" else "N/kg"
         paths.append(
             plot_departure_map(
@@ -179,8 +192,8 @@ def write_rig_plots(result, folder: str | os.PathLike) -> list[Path]:
     sel = result.selection
     data = result.data
     val = data.part(result.split_index, data.n)
-    fig = Figure(figsize=(10, 5), layout="constrained")
-    ax = fig.subplots()
+    fig = Figure(figsize=(10, 6.5), layout="constrained")
+    ax, rax = fig.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [3, 1.3]})
     n = min(val.n, int(5 * data.sample_rate_hz))
     t = val.time_s[:n]
     ax.plot(t, val.force[:n], "k", lw=1.2, label="measured force")
@@ -190,20 +203,24 @@ def write_rig_plots(result, folder: str | os.PathLike) -> list[Path]:
         color="tab:orange",
         label="linear model",
     )
+    rax.plot(t, sel.baseline.residual_validation[:n], color="tab:orange", label="linear model")
     if sel.chosen is not sel.baseline:
-        ax.plot(
-            t,
-            (val.force - sel.chosen.residual_validation)[:n],
-            "--",
-            color="tab:green",
-            label="with " + " + ".join(sel.chosen.effects),
-        )
-    ax.set_xlabel("time (s)")
+        name = "with " + " + ".join(sel.chosen.effects)
+        ax.plot(t, (val.force - sel.chosen.residual_validation)[:n], "--", color="tab:green",
+                label=name)
+        rax.plot(t, sel.chosen.residual_validation[:n], "--", color="tab:green", label=name)
+    rax.axhline(0.0, color="k", lw=0.6)
+    rax.set_xlabel("time (s)")
+    rax.set_ylabel(f"residual ({data.force_unit})")
+    rax.grid(alpha=0.3)
+    rax.legend(fontsize=8)
     ax.set_ylabel(f"force ({data.force_unit})")
     ax.legend()
     ax.grid(alpha=0.3)
     ax.set_title("Rig test, held-out data")
     paths = [_save(fig, out / "rig_force.png")]
+    if not result.to_dict()["findings"]:  # nothing located: no map that reads as a fault
+        return paths
     dmap = departure_map(val.displacement, val.velocity, sel.baseline.residual_validation)
     paths.append(
         plot_departure_map(

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 from nicegui import ui
 
+from fielddiag.dsp import spectrum_on_grid
 from fielddiag.web.charts import (
     heatmap_options,
     region_box,
@@ -195,17 +196,24 @@ def _transmissibility(result: Mapping[str, Any]) -> dict[str, Any] | None:
                 continue
             if freq is None:
                 freq = f
-            if f.size != freq.size or not np.allclose(f, freq):
-                continue
+
+            def on_grid(v: np.ndarray | None, f: np.ndarray = f,
+                        grid: np.ndarray = freq) -> np.ndarray | None:
+                # a result of drives on different grids (older files): the first drive's
+                if v is None or v.size != f.size:
+                    return None
+                same = f.size == grid.size and np.array_equal(f, grid)
+                return v if same else spectrum_on_grid(f, v, grid)
+
             label = str(item.get("label", f"session {len(coh) + 1}"))
-            mag = _magnitude(find(item, "hv", "h1", "magnitude"))
-            if mag is not None and mag.size == f.size:
+            mag = on_grid(_magnitude(find(item, "hv", "h1", "magnitude")))
+            if mag is not None:
                 curves[label] = mag
-            model = _magnitude(item.get("model"))
-            if model is not None and model.size == f.size:
+            model = on_grid(_magnitude(item.get("model")))
+            if model is not None:
                 curves[f"{label} model"] = model
-            c = _arr(item.get("coherence"))
-            if c is not None and c.size == f.size:
+            c = on_grid(_arr(item.get("coherence")))
+            if c is not None:
                 coh[label] = c
     elif isinstance(tr, Mapping):
         freq = _arr(find(tr, "freq_hz", "frequency_hz", "f_hz"))
@@ -470,8 +478,13 @@ def _fit_series(result: Mapping[str, Any]) -> list[dict[str, Any]]:
             if y is not None and y.size == t.size and label not in [x["name"] for x in series]:
                 series.append({"name": label, "x": t, "y": y, "width": 1.3,
                                "color": FIT_COLOURS[label], "dashed": label == "with findings"})
+        # what each model misses (recording minus model), drawn under the fit: where the
+        # traces overlap, the miss is invisible in the fit itself
+        residuals = [{"name": f"residual, {x['name']}", "x": t, "y": rec - x["y"],
+                      "width": 1.1, "color": x["color"], "dashed": x.get("dashed", False)}
+                     for x in series[1:]]
         out.append({"session": str(item.get("session", item.get("label", ""))),
-                    "series": series})
+                    "series": series, "residuals": residuals})
     return out
 
 
@@ -503,11 +516,18 @@ def _linear_parameters_table(result: Mapping[str, Any]) -> None:
         return
     if result.get("verdict") == "adequate":
         return
+    alone_std = result.get("linear_model_std") or {}
+    refit_std = result.get("augmented_model_std") or {}
+
+    def pm(value: Any, std: Any) -> str:
+        return f"{_fmt(value, 4)} ± {_fmt(std, 2) if std is not None else '?'}"
+
     rows = []
     for key, value in refit.items():
         name, unit = model_parameter(key)
         rows.append({"k": f"{name} [{unit}]" if unit else name,
-                     "alone": _fmt(alone.get(key), 4), "refit": _fmt(value, 4)})
+                     "alone": pm(alone.get(key), alone_std.get(key)),
+                     "refit": pm(value, refit_std.get(key))})
     ui.label("Linear part of the model: the linear model alone, and refitted with the "
              "findings").classes("text-base font-semibold")
     ui.table(columns=[{"name": "k", "label": "parameter", "field": "k", "align": "left"},
@@ -577,6 +597,12 @@ def render_diagnosis(result: Mapping[str, Any], recording_view=None) -> None:
                              title=_fit_title(fs["session"], bool(wins)),
                              mark_x_windows=wins, zoom=True)).classes("w-full h-96").classes(
             "fd-fit-chart").mark("fit-chart")
+        if fs["residuals"]:
+            ui.echart(xy_options(fs["residuals"], x_name="time [s]",
+                                 y_name="residual [m/s²]",
+                                 title="Residual: recording minus model",
+                                 mark_x_windows=wins, zoom=True)).classes(
+                "w-full h-56").classes("fd-residual-chart").mark("residual-chart")
     if not fits and recording_view is not None and where["windows"]:
         recording_view(where["windows"])
 
@@ -595,8 +621,11 @@ def render_diagnosis(result: Mapping[str, Any], recording_view=None) -> None:
     elif band:
         ui.label(f"The residual stands out of the noise in {band[0]:.2g}–{band[1]:.2g} Hz "
                  "(this result holds no spectrum to draw)").classes("text-sm")
-    dmap = find(result, "departure_map", "departure")
-    regions = mismatch_regions(result)
+    # the map and its outline only where a finding locates something: on a car judged
+    # adequate an outlined region reads as a fault
+    located = bool(verdict and verdict != "adequate" and isinstance(findings, list) and findings)
+    dmap = find(result, "departure_map", "departure") if located else None
+    regions = mismatch_regions(result) if located else []
     if isinstance(dmap, Mapping) and _arr(dmap.get("r_edges_m")) is not None:
         re_, ve = _arr(dmap["r_edges_m"]), _arr(dmap["rdot_edges_mps"])
         ui.echart(heatmap_options(0.5 * (re_[1:] + re_[:-1]), 0.5 * (ve[1:] + ve[:-1]),
@@ -616,7 +645,7 @@ def render_diagnosis(result: Mapping[str, Any], recording_view=None) -> None:
             "region-text")
     sf = _surface(result)
     if sf is not None:
-        regions = find(result, "mismatch.regions", "regions")
+        regions = find(result, "mismatch.regions", "regions") if located else []
         ui.echart(surface_options(sf["r"], sf["rdot"], sf["force"],
                                   title="Where the model misses (restoring-force map)",
                                   regions=regions if isinstance(regions, list) else ())).classes(

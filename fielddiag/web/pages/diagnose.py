@@ -16,6 +16,7 @@ from nicegui import background_tasks, run, ui
 
 from fielddiag.catalog import result_path
 from fielddiag.errors import FieldDiagError
+from fielddiag.pairs import pair_of
 from fielddiag.web.charts import xy_options
 from fielddiag.web.layout import not_available, notify_error, notify_exception, page_title
 from fielddiag.web.pages.identify import write_result
@@ -23,6 +24,9 @@ from fielddiag.web.results_view import render_diagnosis
 from fielddiag.web.services import call_with_supported, diagnosis_backend, load_result
 
 KIND = "diagnose"
+#: A diagnosis of one drive alone is stored under its own name, so that it never
+#: overwrites the diagnosis of the pair the drive belongs to.
+KIND_SINGLE = "diagnose-single"
 NO_SECOND = ""
 
 
@@ -72,6 +76,7 @@ def render(state, session: str = "", after: str = "") -> None:
                 run_button.disable()
         progress = ui.linear_progress(value=0.0, show_value=False).classes("w-full")
         status = ui.label("").classes("text-sm text-gray-600").mark("diagnose-status")
+        pair_note = ui.label("").classes("text-sm text-amber-800").mark("pair-note")
         progress.set_visibility(False)
     results = ui.column().classes("w-full").mark("diagnose-results")
     summaries: dict[str, Any] = {}
@@ -197,7 +202,8 @@ def render(state, session: str = "", after: str = "") -> None:
             return
         job = state.jobs.submit(
             KIND, f"diagnose {' / '.join(rels)}", run_diagnosis, backend.target, paths,
-            result_path(paths[0], KIND), None if len(rels) == 1 else float(mass.value))
+            result_path(paths[0], KIND if len(rels) == 2 else KIND_SINGLE),
+            None if len(rels) == 1 else float(mass.value))
         job.params["session"] = rels[0]
         watch(job, rels[0])
 
@@ -224,11 +230,22 @@ def render(state, session: str = "", after: str = "") -> None:
         if options is None:
             return
         usable = list(summaries.values())
-        if after in options:
-            second.value = after
         if session in options:
-            sel.value = session
+            # the pair this drive belongs to, by the one pairing rule (same vehicle and
+            # corner, closest in time): a drive opened from its page keeps its partner
+            pb, pa, dm, why = pair_of(session, usable)
+            sel.value = pb or session
+            if after in options:
+                second.value = after
+            elif pb and pa:
+                second.value = pa
+            if second.value and dm is not None:
+                mass.value = round(dm, 3)
+            pair_note.text = "" if second.value else (
+                f"{session}: {why}; diagnosed alone, its parameters are per unit sprung mass")
         else:
+            if after in options:
+                second.value = after
             done = [s for s in usable if KIND in s.processed]
             if done:
                 sel.value = done[0].path

@@ -18,6 +18,7 @@ from nicegui import run, ui
 
 from fielddiag.catalog import result_path
 from fielddiag.errors import FieldDiagError
+from fielddiag.pairs import pair_of
 from fielddiag.web.layout import not_available, notify_error, notify_exception, page_title
 from fielddiag.web.results_view import render_identification
 from fielddiag.web.services import call_with_supported, identification_backend, load_result
@@ -84,6 +85,7 @@ def render(state, before: str = "", after: str = "") -> None:
         progress = ui.linear_progress(value=0.0, show_value=False).classes("w-full").mark(
             "identify-progress")
         progress_label = ui.label("").classes("text-sm text-gray-600").mark("identify-status")
+        pair_note = ui.label("").classes("text-sm text-amber-800").mark("pair-note")
         progress.set_visibility(False)
 
     results = ui.column().classes("w-full").mark("identify-results")
@@ -183,21 +185,18 @@ def render(state, before: str = "", after: str = "") -> None:
                    for s in usable}
         before_sel.set_options(options)
         after_sel.set_options(options)
-        if before in options:
-            before_sel.value = before
-        elif usable:
-            guess = next((s for s in usable if s.added_mass_kg == 0), None)
-            before_sel.value = guess.path if guess else None
-        if after in options:
-            after_sel.value = after
-        elif before_sel.value and usable:
-            b = summaries[before_sel.value]
-            folder = b.path.rsplit("/", 1)[0] if "/" in b.path else ""
-            candidates = [s for s in usable if s.path != b.path and s.added_mass_kg > 0]
-            same = [s for s in candidates if (s.path.rsplit("/", 1)[0] if "/" in s.path
-                                               else "") == folder]
-            pick = (same or candidates or [None])[0]
-            after_sel.value = pick.path if pick else None
+        # the pair the asked-for session belongs to (or the first before drive that has a
+        # partner), by the one pairing rule: same vehicle and corner, closest in time
+        start = before if before in options else after if after in options else next(
+            (s.path for s in usable if s.added_mass_kg == 0 and pair_of(s.path, usable)[1]),
+            None)
+        if start:
+            pb, pa, dm, why = pair_of(start, usable)
+            before_sel.value = pb or None
+            after_sel.value = after if after in options else (pa or None)
+            if dm is not None:
+                mass.value = round(dm, 3)
+            pair_note.text = f"{start}: {why}" if why else ""
         running = [j for j in state.jobs.jobs(KIND) if not j.finished]
         if running:
             watch(running[0])
