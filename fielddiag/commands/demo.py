@@ -38,7 +38,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--duration", type=float, default=120.0, metavar="S",
                    help=f"length of each recorded drive (real time; default 120, at least "
                         f"{MIN_DURATION_S:g})")
-    p.add_argument("--added-mass", type=float, default=DEFAULT_ADDED_MASS_KG, metavar="KG")
+    p.add_argument("--added-mass", type=float, default=DEFAULT_ADDED_MASS_KG, metavar="KG",
+                   help=f"mass added on the body for the second drive (default "
+                        f"{DEFAULT_ADDED_MASS_KG:g} kg)")
     p.add_argument("--seed", type=int, default=1, help="random seed of the demo car's roads")
     p.add_argument("--no-serve", action="store_true", help="do not start the dashboard at the end")
     p.add_argument("--port", type=int, default=8080, help="dashboard port (default 8080)")

@@ -92,6 +92,24 @@ def zoom_window(
     return (lo, hi) if hi > lo else None
 
 
+#: ECharts formats its own tick values, and on log axes (and some value axes) shows float
+#: artefacts such as 0.30000000000000004: labels are rounded to 6 significant digits.
+NICE_LABEL_JS = ("(v) => { const x = Number(v); "
+                 "return Number.isFinite(x) ? String(+x.toPrecision(6)) : v; }")
+
+
+def nice_axis_labels(options: dict[str, Any]) -> dict[str, Any]:
+    """``options`` with every shown value or log axis labelled with rounded numbers."""
+    for key in ("xAxis", "yAxis"):
+        axes = options.get(key)
+        for axis in axes if isinstance(axes, list) else [axes] if isinstance(axes, dict) else []:
+            if axis.get("type") in ("value", "log") and axis.get("show", True):
+                label = axis.setdefault("axisLabel", {})
+                if "formatter" not in label:
+                    label.setdefault(":formatter", NICE_LABEL_JS)
+    return options
+
+
 def timeseries_options(
     traces: Sequence[Trace],
     t_start_s: float,
@@ -178,7 +196,7 @@ def timeseries_options(
             }
         series.append(s)
     all_x = list(range(len(traces)))
-    return {
+    return nice_axis_labels({
         "animation": False,
         "title": titles,
         "grid": grids,
@@ -197,7 +215,7 @@ def timeseries_options(
             {"type": "slider", "xAxisIndex": all_x, "filterMode": "none",
              "start": start_pct, "end": end_pct, "bottom": 8, "height": 22, "throttle": 120},
         ],
-    }
+    })
 
 
 def timeseries_height_px(n_traces: int) -> int:
@@ -278,7 +296,7 @@ def xy_options(
         options["dataZoom"] = [{"type": "inside", "xAxisIndex": 0, "filterMode": "none"}]
         options["toolbox"] = {"right": 20, "feature": {"dataZoom": {"yAxisIndex": "none"},
                                                        "restore": {}}}
-    return options
+    return nice_axis_labels(options)
 
 
 def spectrum_options(
@@ -338,7 +356,7 @@ def spectrum_options(
                        "nameLocation": "middle", "nameGap": 28})
         y_axes.append({"type": "value", "gridIndex": 1, "min": 0, "max": 1,
                        "name": "coherence", "nameLocation": "middle", "nameGap": 50})
-    return {
+    return nice_axis_labels({
         "animation": False,
         "title": {"text": title, "left": "center", "textStyle": {"fontSize": 13}},
         "legend": {"top": 26, "type": "scroll"},
@@ -348,7 +366,7 @@ def spectrum_options(
         "xAxis": x_axes,
         "yAxis": y_axes,
         "series": series,
-    }
+    })
 
 
 def surface_options(
@@ -390,7 +408,7 @@ def surface_options(
             "data": [[{"coord": [g["r_min"], g["rdot_min"]], "name": g.get("name", "")},
                       {"coord": [g["r_max"], g["rdot_max"]]}] for g in regions],
         }
-    return {
+    return nice_axis_labels({
         "animation": False,
         "title": {"text": title, "left": "center", "textStyle": {"fontSize": 13}},
         "grid": {"left": 80, "right": 110, "top": 50, "bottom": 50},
@@ -404,7 +422,7 @@ def surface_options(
                       "inRange": {"color": ["#313695", "#74add1", "#ffffbf", "#f46d43",
                                             "#a50026"]}},
         "series": [series],
-    }
+    })
 
 
 REGION_COLOURS = ("#000000", "#00a651", "#7b2cbf", "#ff00c8")

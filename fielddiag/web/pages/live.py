@@ -17,7 +17,7 @@ from fielddiag.catalog import OutsideRootError, resolve_under_root
 from fielddiag.channels import SessionMetadata
 from fielddiag.downsample import minmax_lttb_indices
 from fielddiag.errors import FieldDiagError
-from fielddiag.web.charts import PALETTE, pairs_array
+from fielddiag.web.charts import PALETTE, nice_axis_labels, pairs_array
 from fielddiag.web.layout import (
     not_available,
     notify_error,
@@ -89,8 +89,8 @@ def live_options(traces: list[tuple[str, str, np.ndarray]], t_hi: float,
                                     "label": {"show": i == 0, "position": "end",
                                               "fontSize": 10},
                                     "data": marks}})
-    return {"animation": False, "title": titles, "grid": grids, "xAxis": xs, "yAxis": ys,
-            "series": series}
+    return nice_axis_labels({"animation": False, "title": titles, "grid": grids, "xAxis": xs,
+                             "yAxis": ys, "series": series})
 
 
 def _observability_row(p: dict) -> None:

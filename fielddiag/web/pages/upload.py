@@ -12,9 +12,11 @@ from nicegui import ui
 
 from fielddiag.catalog import OutsideRootError, resolve_under_root
 from fielddiag.channels import SessionMetadata
+from fielddiag.io.csv_import import ACCEL_UNITS, SPEED_UNITS, TIME_UNITS, CsvImportOptions
 from fielddiag.web.layout import notify_error
 
 IMPORT_FOLDER = "imports"
+_DEFAULTS = CsvImportOptions(roles={}, time_column="")
 _SAFE_NAME = re.compile(r"[^A-Za-z0-9_.\-]+")
 
 
@@ -64,10 +66,13 @@ def import_panel(state, on_imported: Callable[[], Awaitable[None] | None]) -> No
                     speed_col = ui.select([], label="speed (optional)", clearable=True).classes(
                         "w-40").mark("csv-speed")
                 with ui.row().classes("gap-2"):
-                    accel_unit = ui.select(["m/s2", "g"], value="m/s2",
+                    # the same units and defaults as `fielddiag import`
+                    accel_unit = ui.select(list(ACCEL_UNITS), value=_DEFAULTS.accel_unit,
                                            label="acceleration unit").classes("w-40")
-                    time_unit = ui.select(["s", "ms", "us"], value="s",
+                    time_unit = ui.select(list(TIME_UNITS), value=_DEFAULTS.time_unit,
                                           label="time unit").classes("w-28")
+                    speed_unit = ui.select(list(SPEED_UNITS), value=_DEFAULTS.speed_unit,
+                                           label="speed unit").classes("w-28")
                     vehicle = ui.input("vehicle").classes("w-40").mark("csv-vehicle")
                     corner = ui.input("corner").classes("w-32")
                     mass = ui.number("added mass [kg]", value=0, min=0).classes("w-32")
@@ -113,7 +118,7 @@ def import_panel(state, on_imported: Callable[[], Awaitable[None] | None]) -> No
         ui.notify(f"{name}: {len(cols)} columns; check the mapping and press Import")
 
     def do_import() -> None:
-        from fielddiag.io.csv_import import CsvImportOptions, import_csv
+        from fielddiag.io.csv_import import import_csv
 
         src = uploaded.get("path")
         if src is None:
@@ -136,7 +141,8 @@ def import_panel(state, on_imported: Callable[[], Awaitable[None] | None]) -> No
             notify_error(f"{out_rel} already exists; rename the file before uploading it")
             return
         opts = CsvImportOptions(roles=roles, time_column=time_col.value,
-                                time_unit=time_unit.value, accel_unit=accel_unit.value)
+                                time_unit=time_unit.value, accel_unit=accel_unit.value,
+                                speed_unit=speed_unit.value)
         meta = SessionMetadata(vehicle=vehicle.value or "", corner=corner.value or "",
                                added_mass_kg=float(mass.value or 0.0),
                                notes=f"imported from {uploaded['name']} via the dashboard")
