@@ -200,9 +200,13 @@ def render(state, session: str = "", after: str = "") -> None:
         except FieldDiagError as exc:
             notify_error(str(exc))
             return
+        # a drive that belongs to a pair keeps the pair's result: diagnosed alone, its
+        # result is stored under a name of its own
+        alone_in_pair = len(rels) == 1 and bool(
+            all(pair_of(rels[0], list(summaries.values()))[:2]))
         job = state.jobs.submit(
             KIND, f"diagnose {' / '.join(rels)}", run_diagnosis, backend.target, paths,
-            result_path(paths[0], KIND if len(rels) == 2 else KIND_SINGLE),
+            result_path(paths[0], KIND_SINGLE if alone_in_pair else KIND),
             None if len(rels) == 1 else float(mass.value))
         job.params["session"] = rels[0]
         watch(job, rels[0])
