@@ -291,7 +291,8 @@ def _summary_text(result: Mapping[str, Any]) -> str:
 
 def render_identification(result: Mapping[str, Any]) -> None:
     """Transmissibility before/after with coherence, restoring-force surface, parameters."""
-    ui.label("Parameters").classes("text-base font-semibold mt-2")
+    ui.label("Parameters of the linear model (the diagnosis refits them with the physics it "
+             "finds)").classes("text-base font-semibold mt-2")
     _parameter_table(result)
     warnings = result.get("warnings") if isinstance(result, Mapping) else None
     for w in warnings if isinstance(warnings, list) else []:
