@@ -105,8 +105,11 @@ def test_cli_pair_with_plots(pending, tmp_path, capsys):
     assert "asymmetric" in text and "MISSING PHYSICS" in text
     # the linear part refitted with the finding, in SI units, beside the linear model alone
     m2 = out["augmented_model"]["sprung_mass_kg"]
-    assert "linear part, fitted with the findings: " in text
-    assert f"sprung mass {m2:.4g} kg" in text and "(the linear model alone: " in text
+    s2 = out["augmented_model_std"]["sprung_mass_kg"]
+    assert "suspension, fitted with the findings: " in text
+    assert f"sprung mass {m2:.4g} +- {s2:.2g} kg" in text
+    assert "(the linear model alone, biased by what it leaves out: " in text
+    assert 0 < s2 < 0.05 * m2
 
 
 def _true_params(name: str, effect: str) -> dict[str, float]:
@@ -138,7 +141,7 @@ def test_single_drive_names_friction_per_kg_and_nothing_else(pending, tmp_path, 
     assert out["augmented"]["nrmse_validation"] < NRMSE_RATIO * out["baseline"][
         "nrmse_validation"]
     text = capsys.readouterr().out
-    assert "linear part, fitted with the findings: " in text and "N/m per kg" in text
+    assert "suspension, fitted with the findings: " in text and "N/m per kg" in text
 
 
 def test_catalogue_covers_the_acceptance_list():

@@ -134,13 +134,18 @@ def test_cli_refuses_swapped_duplicated_and_copied_drives(drives):
                     "--added-mass -60", "positive")
 
 
-def test_cli_refuses_a_pair_whose_resonance_rose(drives):
+def test_cli_flags_a_pair_whose_resonance_rose(drives):
     """Unrelated drives with no metadata to tell: the data show the 'after' car is not the
-    'before' car with a mass added (its stiffness per unit mass rose)."""
+    'before' car with a mass added (its stiffness per unit mass rose). A spring that
+    stiffens as the car sags does that too, so it is a warning naming both, not a gate."""
     cwd = drives["before"].parent
-    line = _one_line_error(_cli("identify", "before.h5", "stiff_after.h5", cwd=cwd),
-                           "resonance rose")
-    assert "swapped or are not of the same car corner" in line
+    r = _cli("identify", "before.h5", "stiff_after.h5", cwd=cwd)
+    text = r.stdout + r.stderr
+    assert r.returncode in (0, 1) and "Traceback" not in text
+    line = next(ln for ln in text.splitlines() if "the body resonance rose" in ln)
+    assert "swapped or not of the same car corner" in line
+    assert "progressive spring" in line and "fielddiag diagnose" in line
+    assert not re.search(r"e\+\d\d kg", text)  # no absurd numbers
 
 
 def test_cli_warns_when_stiffness_and_damping_disagree_on_the_mass(drives):
@@ -152,7 +157,7 @@ def test_cli_warns_when_stiffness_and_damping_disagree_on_the_mass(drives):
     implied = [float(v) for v in re.findall(r"implies a sprung mass of ([\d.]+)|damping ([\d.]+)",
                                             warning)[0] if v]
     assert 340 < implied[0] < 420  # from the stiffness: the true 380 kg
-    assert "fielddiag diagnose" in warning and "not linear" in warning
+    assert "fielddiag diagnose" in warning and "suspension is not linear" in warning
     # and the matched pair gets no such warning, and its mass within 4 std of 380 kg
     r = _cli("identify", "before.h5", "after.h5", cwd=cwd)
     assert r.returncode == 0 and "do not behave like one corner" not in r.stdout

@@ -623,7 +623,6 @@ def _transmissibility_warnings(drives: Sequence[Drive]) -> list[data_checks.Data
     transmissibilities against its fitted linear model."""
     from fielddiag.identify import Recording, identify_recordings
     from fielddiag.identify.pipeline import PAIR_INCONSISTENT
-    from fielddiag.pairs import PairError
 
     recs = [
         Recording(
@@ -639,8 +638,6 @@ def _transmissibility_warnings(drives: Sequence[Drive]) -> list[data_checks.Data
         ident = identify_recordings(
             recs[0], recs[1], drives[1].added_mass_kg - drives[0].added_mass_kg
         )
-    except PairError:
-        raise  # swapped drives or not one corner: no diagnosis can be made of them
     except FieldDiagError as exc:
         # Only a lack of excitation is a problem of the data; the linear identification
         # also refuses when the physics is not linear, which is the diagnosis's own subject.
@@ -999,9 +996,9 @@ def diagnose_sessions(
         return diagnose_drives([read_drive(paths[0], "drive", 0.0)], progress=progress, **kw)
     from fielddiag.pairs import check_pair_files
 
-    pair = check_pair_files(paths[0], paths[1], added_mass_kg)
-    before = read_drive(paths[0], "before")
+    before = read_drive(paths[0], "before")  # a missing channel is said first
     after = read_drive(paths[1], "after")
+    pair = check_pair_files(paths[0], paths[1], added_mass_kg)
     after.added_mass_kg = before.added_mass_kg + pair.added_mass_kg
     result = diagnose_drives([before, after], progress=progress, **kw)
     result.warnings[:0] = [data_checks.DataWarning("pair", w) for w in pair.warnings]

@@ -479,21 +479,30 @@ def identify_recordings(
     diagnose_hint = ("run `fielddiag diagnose` on the same two drives to see what the linear "
                      "model leaves out")
     if pair.stiffness_drop_z < -3.0:
-        from fielddiag.pairs import PairError
-
-        raise PairError(
-            f"the body resonance rose after adding {dm:g} kg (stiffness per unit mass "
-            f"{pair.ratios_before[0]:.4g} before, {pair.ratios_after[0]:.4g} 1/s2 after): the "
-            "drives look swapped or are not of the same car corner; give the drive as the car "
-            "is first, then the drive with the added mass")
+        # a competing hypothesis, not a gate: a spring that stiffens as the car sags under
+        # the added mass raises the resonance too
+        warnings.append(
+            f"{PAIR_INCONSISTENT} with {dm:g} kg added: the body resonance rose (stiffness "
+            f"per unit mass {pair.ratios_before[0]:.4g} before, {pair.ratios_after[0]:.4g} "
+            "1/s2 after). Either the drives are swapped or not of the same car corner, or the "
+            "spring stiffens as the car sags (a progressive spring or a bump stop), and these "
+            f"values do not hold: {diagnose_hint}")
     mk, mc = pair.mass_from_stiffness_kg, pair.mass_from_damping_kg
-    if pair.disagreement_z > 4.0 and not (mk > 0 and mc > 0 and 2 / 3 < mk / mc < 3 / 2):
+    if (pair.stiffness_drop_z >= -3.0 and pair.disagreement_z > 4.0
+            and not (mk > 0 and mc > 0 and 2 / 3 < mk / mc < 3 / 2)):
         warnings.append(
             f"{PAIR_INCONSISTENT} with {dm:g} kg added: their "
             f"stiffness implies a sprung mass of {mk:.4g} +- {pair.mass_from_stiffness_std_kg:.2g}"
             f" kg, their damping {mc:.4g} +- {pair.mass_from_damping_std_kg:.2g} kg. Either "
-            "they are not of the same car corner, or the damping is not linear (dry friction "
-            f"changes the equivalent damping with the amplitude): {diagnose_hint}")
+            "they are not of the same car corner, or the suspension is not linear (dry "
+            "friction or a progressive spring change the equivalent damping and stiffness "
+            f"with the load and the amplitude): {diagnose_hint}")
+    mismatch = [w for w in warnings if w.startswith(PAIR_INCONSISTENT)]
+    if mismatch and not (m2 > 0 and k2 > 0 and main.std[0] < 0.2 * m2):
+        # the best explanation of a hopeless fit: the drives do not behave as one corner
+        raise InsufficientDataError(
+            "no sprung mass can be given: " + mismatch[0].replace(
+                "and these values do not hold: ", ""))
     if not (m2 > 0 and k2 > 0 and np.all(np.isfinite(main.theta))):
         raise InsufficientDataError(
             f"the fit gives no physical answer (M2 {m2:.4g} kg, K2 {k2:.4g} N/m): the added mass"
@@ -502,9 +511,11 @@ def identify_recordings(
             f"record longer or on a rougher road, or {diagnose_hint}")
     rel = main.std[0] / m2
     if not math.isfinite(rel) or rel > cfg.max_relative_std_mass:
+        value = (f"{m2:.4g} +- {main.std[0]:.3g} kg ({100 * rel:.0f} % std, more than "
+                 f"{100 * cfg.max_relative_std_mass:.0f} %)" if rel < 1.0
+                 else "its standard deviation exceeds the value itself")
         raise InsufficientDataError(
-            f"the sprung mass cannot be resolved: {m2:.4g} +- {main.std[0]:.3g} kg "
-            f"({100 * rel:.0f} % std, more than {100 * cfg.max_relative_std_mass:.0f} %). "
+            f"the sprung mass cannot be resolved: {value}. "
             + _resolution_advice(dm, duration, rel, cfg, diagnose_hint))
     if rel > cfg.target_relative_std_mass:
         warnings.append(
@@ -701,9 +712,9 @@ def identify_sessions(
     """
     from fielddiag.pairs import check_pair_files
 
-    pair = check_pair_files(before_path, after_path, added_mass_kg)
-    before = read_recording(before_path, "before")
+    before = read_recording(before_path, "before")  # a missing channel is said first
     after = read_recording(after_path, "after")
+    pair = check_pair_files(before_path, after_path, added_mass_kg)
     result = identify_recordings(before, after, pair.added_mass_kg, band_hz=band_hz,
                                  config=config, progress=progress)
     result.warnings = list(dict.fromkeys([*pair.warnings, *result.warnings]))

@@ -84,7 +84,8 @@ async def test_sessions_page_lists_and_searches(dashboard_user, sessions_root: P
         [StepOutcome("identify", "done", output=str(sessions_root / "car-a" /
                                                     "before.identify.json"),
                      summary={"sprung_mass_kg": 401.2, "stiffness_n_per_m": 25_300.0,
-                              "damping_ns_per_m": 1720.0}),
+                              "damping_ns_per_m": 1720.0, "sprung_mass_std_kg": 3.1,
+                              "stiffness_std_n_per_m": 210.0, "damping_std_ns_per_m": 14.0}),
          StepOutcome("diagnose", "failed", message="too little excitation")]))
     user.find(marker="rescan").click()
 
@@ -94,7 +95,8 @@ async def test_sessions_page_lists_and_searches(dashboard_user, sessions_root: P
 
     await _wait_for(user, lambda: batch_cells().get("car-a/after.h5", ("",))[0] != "")
     cells = batch_cells()
-    assert cells["car-a/after.h5"] == ("M 401 kg, K 25.3 kN/m, C 1720 Ns/m", "failed",
+    assert cells["car-a/after.h5"] == ("M 401+-3 kg, K 25.3+-0.2 kN/m, C 1720+-14 Ns/m "
+                                       "(linear)", "failed",
                                        "diagnose: too little excitation", "identify")
     assert cells["car-a/before.h5"][0] == cells["car-a/after.h5"][0]
     user.find(marker="search").type("failed")

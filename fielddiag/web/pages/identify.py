@@ -179,6 +179,8 @@ def render(state, before: str = "", after: str = "") -> None:
         except Exception as exc:  # a vanished folder, a permission problem, a bug
             notify_exception("Cannot list the sessions", exc)
             return
+        if found is None:  # the server is stopping (nicegui's io_bound gives None then)
+            return
         usable = [s for s in found if not s.error]
         summaries.update({s.path: s for s in usable})
         options = {s.path: f"{s.path}  ({s.vehicle or '?'}, +{s.added_mass_kg:g} kg)"
