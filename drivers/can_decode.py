@@ -136,8 +136,7 @@ def messages_to_frames(
     out["bus"] = bus
     out["flags"] = [frame_flags(m) for m in msgs]
     out["dlc"] = [m.dlc for m in msgs]
-    pad = b"\0" * CAN_DATA_BYTES
-    raw = b"".join((bytes(m.data or b"") + pad)[:CAN_DATA_BYTES] for m in msgs)
+    raw = b"".join(bytes(m.data or b"")[:CAN_DATA_BYTES].ljust(CAN_DATA_BYTES, b"\0") for m in msgs)
     out["data"] = np.frombuffer(raw, dtype="u1").reshape(n, CAN_DATA_BYTES)
     return out
 
