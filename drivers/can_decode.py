@@ -411,7 +411,7 @@ def resolve_signals(
                     f"{', '.join(s.name for s in messages[msg_name].signals)}"
                 )
             close = difflib.get_close_matches(ref, list(index), n=5)
-            hint = f"; did you mean {', '.join(close)}?" if close else ""
+            hint = f"; did you mean {', '.join(close)}?" if close else "."
             raise DbcError(
                 f"signal {ref!r} is not in {labels}{hint} Name it as SIGNAL or MESSAGE.SIGNAL "
                 "as the DBC spells it (`cantools dump FILE.dbc` lists them)"
