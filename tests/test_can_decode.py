@@ -331,3 +331,12 @@ def test_live_bus_and_log_import_store_identical_signals_fd_included(tmp_path, d
     assert values["WHEEL_SPEED_FL"][5] == pytest.approx(30.05 * MPH, rel=1e-15)
     assert values["YAW"][0] == pytest.approx(math.radians(-0.9), rel=1e-12)
     assert src.counters()["can_decode_errors"] == 0
+
+
+def test_the_examples_in_the_docstrings_hold():
+    import doctest
+
+    from drivers import can_decode
+
+    result = doctest.testmod(can_decode)
+    assert result.attempted >= 10 and result.failed == 0

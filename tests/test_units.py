@@ -88,3 +88,9 @@ def test_gravity_and_unit_factors_are_written_only_in_units_py():
                 if literal.search(line.split("#")[0]):
                     found.append(f"{path.relative_to(REPO)}:{n}: {line.strip()}")
     assert found == []
+
+
+def test_the_examples_in_the_docstrings_hold():
+    import doctest
+
+    assert doctest.testmod(units).failed == 0
