@@ -39,6 +39,8 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO.parent / "shared" / "data" / "can"
+if not DATA.is_dir():  # a worktree under /work/wt: the shared data stays in /work/shared
+    DATA = Path("/work/shared/data/can")
 sys.path.insert(0, str(REPO))
 
 from drivers.base import SessionClock  # noqa: E402
@@ -285,13 +287,8 @@ def bench_record_command(duration_s: float) -> None:
 def bench_can() -> None:
     import can
 
-    from drivers.can_vehicle import (
-        SignalDecoder,
-        load_dbc,
-        messages_to_frames,
-        read_can_log,
-        resolve_signals,
-    )
+    from drivers.can_decode import CanDecoder, load_dbc, messages_to_frames, resolve_signals
+    from drivers.can_vehicle import read_can_log
 
     log, dbc = DATA / "comma2k19_rav4_2018-08-02_seg40.log", DATA / "toyota_new_mc_pt_generated.dbc"
     if not log.exists():
@@ -309,13 +306,12 @@ def bench_can() -> None:
         f"({len(sig['vehicle_speed'][1])} speeds, {err} errors)"
     )
     msgs = list(can.LogReader(str(log)))
-    dec = SignalDecoder(db, resolve_signals(db, sigs))
+    dec = CanDecoder(resolve_signals(db, sigs))
     t = time.perf_counter()
     for i in range(0, len(msgs), 2000):
         batch = msgs[i : i + 2000]
         ts = np.fromiter((m.timestamp for m in batch), "f8", len(batch))
-        fr, data = messages_to_frames(batch, ts, 0)
-        dec.decode(fr, data)
+        dec.decode(messages_to_frames(batch, ts, 0))
     dt = time.perf_counter() - t
     print(
         f"   (b) recorder batch work (raw frames + 5 signals):  {len(msgs) / dt / 1e3:6.0f} k fr/s"

@@ -24,8 +24,9 @@ can reuse the same IDs), ``bus`` (index stored with every frame of a live bus). 
 options of a ``can://`` URL go to ``can.Bus`` (``bitrate``, ``fd``, ``data_bitrate``,
 ``sleep_after_open``...).
 
-Units: signals in km/h or mph are stored in m/s with unit ``m/s``; all other signals
-keep their DBC unit.
+Decoding, units (SI: km/h -> m/s, deg -> rad, rpm -> rad/s, g -> m/s2...), CAN FD
+lengths and signal names are those of :mod:`drivers.can_decode`, which the import of CAN
+logs uses too: the same frames are stored as the same signals either way.
 """
 
 from __future__ import annotations
@@ -34,238 +35,24 @@ import os
 import time
 from collections import deque
 from collections.abc import Iterable, Iterator, Sequence
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from drivers.base import Block, Event, SignalSpec, Source, SourceURL, parse_source_url
-from fielddiag.errors import DeviceError
-from fielddiag.session import (
-    CAN_DATA_BYTES,
-    CAN_FLAG_BRS,
-    CAN_FLAG_ERROR,
-    CAN_FLAG_ESI,
-    CAN_FLAG_EXTENDED,
-    CAN_FLAG_FD,
-    CAN_FLAG_REMOTE,
-    CAN_FLAG_RX,
-    CAN_FRAME_DTYPE,
+from drivers.can_decode import (
+    BUS_RULE,
+    BusTable,
+    CanDecoder,
+    Dbc,
+    load_dbc,
+    messages_to_frames,
+    resolve_signals,
 )
-
-#: DBC units converted to SI on decoding: unit -> (factor to m/s, stored unit).
-UNIT_CONVERSIONS = {
-    "km/h": (1 / 3.6, "m/s"),
-    "kph": (1 / 3.6, "m/s"),
-    "kmh": (1 / 3.6, "m/s"),
-    "mph": (0.44704, "m/s"),
-}
-SPEED_NAMES = {"SPEED", "VEHICLESPEED", "VEHSPEED", "WHEELBASEDVEHICLESPEED", "VEHICLE_SPEED"}
+from fielddiag.errors import DeviceError
+from fielddiag.session import CAN_FRAME_DTYPE
 
 _COMMON_KEYS = {"dbc", "signal", "speed", "decode_channel", "bus"}
-
-
-def load_dbc(path: str | os.PathLike | Any) -> Any:
-    """Load a DBC (or any cantools database file) leniently; pass a Database through."""
-    import cantools
-
-    if not isinstance(path, str | os.PathLike):
-        return path
-    p = os.fspath(path)
-    if not os.path.exists(p):
-        raise DeviceError(f"DBC file {p} does not exist")
-    try:
-        return cantools.database.load_file(p, strict=False)
-    except Exception as exc:  # cantools raises many kinds of parse errors
-        raise DeviceError(f"cannot read DBC {p}: {exc}") from None
-
-
-# ------------------------------------------------------------------------ signal choice
-@dataclass(frozen=True)
-class SignalRequest:
-    """A signal to decode: stored as ``name``, from DBC ``message``.``signal``."""
-
-    name: str
-    message: str
-    signal: str
-
-
-def resolve_signals(db: Any, requests: Iterable[str]) -> list[SignalRequest]:
-    """Turn ``SIGNAL``, ``MESSAGE.SIGNAL`` or ``ALIAS=MESSAGE.SIGNAL`` into SignalRequests."""
-    out: list[SignalRequest] = []
-    for text in requests:
-        alias, _, ref = text.rpartition("=")
-        msg_name, _, sig_name = ref.rpartition(".")
-        if msg_name:
-            try:
-                msg = db.get_message_by_name(msg_name)
-            except KeyError:
-                raise DeviceError(
-                    f"the DBC has no message {msg_name!r} (asked for {text!r})"
-                ) from None
-            if sig_name not in [s.name for s in msg.signals]:
-                raise DeviceError(
-                    f"message {msg_name} has no signal {sig_name!r}; it has "
-                    f"{', '.join(s.name for s in msg.signals)}"
-                )
-            found = [msg]
-        else:
-            found = [m for m in db.messages if any(s.name == sig_name for s in m.signals)]
-            if not found:
-                raise DeviceError(
-                    f"no message of the DBC has a signal {sig_name!r}; name one as "
-                    "MESSAGE.SIGNAL (see `cantools dump FILE.dbc`)"
-                )
-            if len(found) > 1:
-                raise DeviceError(
-                    f"signal {sig_name!r} is in several messages "
-                    f"({', '.join(m.name for m in found)}); write MESSAGE.{sig_name}"
-                )
-        out.append(SignalRequest(alias or sig_name, found[0].name, sig_name))
-    names = [r.name for r in out]
-    dup = {n for n in names if names.count(n) > 1}
-    if dup:
-        raise DeviceError(f"signals named twice: {sorted(dup)}; give aliases (ALIAS=MSG.SIG)")
-    return out
-
-
-class SignalDecoder:
-    """Decode the requested signals from batches of raw frames (cantools, per frame).
-
-    Parameters
-    ----------
-    db : cantools Database
-    requests : sequence of SignalRequest
-    speed_signal : str or None
-        Name (as stored) of the vehicle speed; None picks one by name.
-    decode_channel : int or None
-        Only frames with this bus index are decoded.
-    """
-
-    def __init__(
-        self,
-        db: Any,
-        requests: Sequence[SignalRequest],
-        *,
-        speed_signal: str | None = None,
-        decode_channel: int | None = None,
-    ) -> None:
-        self.db = db
-        self.requests = list(requests)
-        self.decode_channel = decode_channel
-        self.errors = 0
-        self.decoded_frames = 0
-        by_id: dict[int, tuple[Any, list[tuple[str, str, float]]]] = {}
-        self.specs: list[SignalSpec] = []
-        if speed_signal is None:
-            for r in self.requests:
-                if r.name == "vehicle_speed" or r.signal.upper().replace("_", "") in {
-                    n.replace("_", "") for n in SPEED_NAMES
-                }:
-                    speed_signal = r.name
-                    break
-        elif speed_signal not in [r.name for r in self.requests]:
-            raise DeviceError(
-                f"speed signal {speed_signal!r} is not among the decoded signals "
-                f"{[r.name for r in self.requests]}"
-            )
-        self.speed_signal = speed_signal
-        for r in self.requests:
-            msg = db.get_message_by_name(r.message)
-            sig = msg.get_signal_by_name(r.signal)
-            unit = (sig.unit or "").strip()
-            factor, si_unit = UNIT_CONVERSIONS.get(unit.lower(), (1.0, unit))
-            entry = by_id.setdefault(msg.frame_id, (msg, []))
-            entry[1].append((r.name, r.signal, factor))
-            self.specs.append(
-                SignalSpec(
-                    name=r.name,
-                    unit=si_unit,
-                    source="can",
-                    message=r.message,
-                    role="speed" if r.name == speed_signal else "other",
-                )
-            )
-        self._by_id = by_id
-
-    def decode(
-        self, frames: np.ndarray, data: Sequence[bytes]
-    ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-        """Signals in ``frames`` (CAN_FRAME_DTYPE) whose payloads are ``data``."""
-        if not self._by_id or len(frames) == 0:
-            return {}
-        ids = frames["arbitration_id"]
-        wanted = np.isin(ids, np.fromiter(self._by_id, dtype="u4"))
-        if self.decode_channel is not None:
-            wanted &= frames["bus"] == self.decode_channel
-        idx = np.flatnonzero(wanted)
-        if idx.size == 0:
-            return {}
-        times = frames["time_s"]
-        acc: dict[str, tuple[list[float], list[float]]] = {}
-        for i in idx.tolist():
-            msg, outs = self._by_id[int(ids[i])]
-            try:
-                values = msg.decode(data[i], decode_choices=False, allow_truncated=True)
-            except Exception:  # a frame the DBC cannot decode (length, multiplexer...)
-                self.errors += 1
-                continue
-            self.decoded_frames += 1
-            t = float(times[i])
-            for name, sig, factor in outs:
-                v = values.get(sig)
-                if v is None:
-                    continue
-                tl, vl = acc.setdefault(name, ([], []))
-                tl.append(t)
-                vl.append(float(v) * factor)
-        return {k: (np.array(t), np.array(v)) for k, (t, v) in acc.items()}
-
-
-# ------------------------------------------------------------------------ raw frames
-def _flags(m: Any) -> int:
-    f = 0
-    if m.is_extended_id:
-        f |= CAN_FLAG_EXTENDED
-    if m.is_remote_frame:
-        f |= CAN_FLAG_REMOTE
-    if m.is_error_frame:
-        f |= CAN_FLAG_ERROR
-    if m.is_fd:
-        f |= CAN_FLAG_FD
-    if m.bitrate_switch:
-        f |= CAN_FLAG_BRS
-    if m.error_state_indicator:
-        f |= CAN_FLAG_ESI
-    if m.is_rx:
-        f |= CAN_FLAG_RX
-    return f
-
-
-def messages_to_frames(
-    msgs: Sequence[Any], time_s: np.ndarray, bus: np.ndarray | int
-) -> tuple[np.ndarray, list[bytes]]:
-    """Raw frames (CAN_FRAME_DTYPE) of python-can messages, and their payloads."""
-    n = len(msgs)
-    out = np.zeros(n, dtype=CAN_FRAME_DTYPE)
-    if n == 0:
-        return out, []
-    data = [bytes(m.data) for m in msgs]
-    out["time_s"] = time_s
-    out["arbitration_id"] = [m.arbitration_id for m in msgs]
-    out["bus"] = bus
-    out["flags"] = [_flags(m) for m in msgs]
-    out["dlc"] = [m.dlc for m in msgs]
-    raw = b"".join(d[:CAN_DATA_BYTES].ljust(CAN_DATA_BYTES, b"\0") for d in data)
-    out["data"] = np.frombuffer(raw, dtype="u1").reshape(n, CAN_DATA_BYTES)
-    return out, data
-
-
-def frames_payloads(frames: np.ndarray) -> list[bytes]:
-    """Payloads of stored frames (their first ``dlc`` bytes)."""
-    # python-can stores the byte count in Message.dlc, so dlc is the length already.
-    lengths = np.minimum(frames["dlc"], CAN_DATA_BYTES).tolist()
-    return [bytes(row[:n]) for row, n in zip(frames["data"], lengths, strict=True)]
 
 
 def decode_stored_frames(
@@ -278,16 +65,34 @@ def decode_stored_frames(
 ) -> tuple[list[SignalSpec], dict[str, tuple[np.ndarray, np.ndarray]], int]:
     """Decode raw frames stored in a session with a (possibly different) DBC.
 
-    Returns (signal specs, {name: (time_s, value)}, decode errors).
+    Parameters
+    ----------
+    frames : numpy.ndarray of CAN_FRAME_DTYPE
+        As :meth:`fielddiag.session.SessionReader.can_frames` returns them.
+    dbc : path or cantools Database
+    signals : iterable of str
+        ``SIGNAL``, ``MESSAGE.SIGNAL`` or ``ALIAS=MESSAGE.SIGNAL``.
+    speed_signal : str or None
+        Stored name of the vehicle speed (default: found by name).
+    decode_channel : int or None
+        Decode only the frames of this bus index.
+
+    Returns
+    -------
+    specs : list of SignalSpec
+    signals : dict
+        ``{name: (time_s, value_si)}``, as the recorder would have stored them.
+    errors : int
+        Frames that failed to decode.
     """
-    db = load_dbc(dbc)
-    dec = SignalDecoder(
-        db,
-        resolve_signals(db, signals),
-        speed_signal=speed_signal,
-        decode_channel=decode_channel,
-    )
-    return dec.specs, dec.decode(frames, frames_payloads(frames)), dec.errors
+    buses = None if decode_channel is None else frozenset({int(decode_channel)})
+    dbc_obj = Dbc(load_dbc(dbc), _dbc_label(dbc), buses)
+    dec = CanDecoder(resolve_signals(dbc_obj, signals, speed_signal=speed_signal))
+    return dec.specs, dec.decode(frames), dec.errors
+
+
+def _dbc_label(dbc: Any) -> str:
+    return os.path.basename(os.fspath(dbc)) if isinstance(dbc, str | os.PathLike) else "the DBC"
 
 
 # ------------------------------------------------------------------------ sources
@@ -303,30 +108,6 @@ def _typed(value: str) -> Any:
         except ValueError:
             pass
     return value
-
-
-BUS_RULE = (
-    "bus = the number ending the log's channel name (can0 -> 0, vcan1 -> 1, ASC/BLF channel "
-    "2 -> 2); other names get the next free number in order of appearance"
-)
-
-
-def _bus_index(channel: Any, table: dict[Any, int]) -> int:
-    """Bus index of a log channel (see :data:`BUS_RULE`)."""
-    if channel in table:
-        return table[channel]
-    s = str(channel)
-    k = len(s)
-    while k > 0 and s[k - 1].isdigit():
-        k -= 1
-    digits = s[k:]
-    idx = int(digits) if digits and int(digits) < 256 else None
-    if idx is None or idx in table.values():
-        idx = len(table)
-        while idx in table.values():
-            idx += 1
-    table[channel] = idx
-    return idx
 
 
 class _CanSource(Source):
@@ -350,9 +131,9 @@ class _CanSource(Source):
         self.min_block_interval_s = min_block_interval_s
         self.stores_can_frames = True
         self.dbc_label: str | None = None  # how to name a DBC given as a Database object
-        self.decoder: SignalDecoder | None = None
+        self.decoder: CanDecoder | None = None
         self.frames_received = 0
-        self._bus_table: dict[Any, int] = {}
+        self._bus_table = BusTable()
         self._rate_window: deque[tuple[float, int]] = deque(maxlen=200)
         self._last_values: dict[str, float] = {}
 
@@ -378,21 +159,22 @@ class _CanSource(Source):
         if self.dbc is None:
             self.signals = []
             return
-        db = load_dbc(self.dbc)
         channel = self.decode_channel
         if channel is not None and not isinstance(channel, int):
-            channel = _bus_index(channel, self._bus_table)
-        self.decoder = SignalDecoder(
-            db,
-            resolve_signals(db, self.signal_names),
-            speed_signal=self.speed_signal,
-            decode_channel=channel,
+            channel = self._bus_table.index(channel)
+        dbc = Dbc(
+            load_dbc(self.dbc),
+            self.dbc_label or _dbc_label(self.dbc),
+            None if channel is None else frozenset({channel}),
+        )
+        self.decoder = CanDecoder(
+            resolve_signals(dbc, self.signal_names, speed_signal=self.speed_signal)
         )
         self.signals = list(self.decoder.specs)
 
     def _block(self, msgs: list[Any], time_s: np.ndarray, bus: np.ndarray | int) -> Block:
-        frames, data = messages_to_frames(msgs, time_s, bus)
-        signals = self.decoder.decode(frames, data) if self.decoder else {}
+        frames = messages_to_frames(msgs, time_s, bus)
+        signals = self.decoder.decode(frames) if self.decoder else {}
         for k, (_, v) in signals.items():
             self._last_values[k] = float(v[-1])
         self.frames_received += len(msgs)
@@ -691,7 +473,7 @@ class CanLogSource(_CanSource):
             return None
         ts = np.fromiter((m.timestamp for m in msgs), dtype="f8", count=len(msgs))
         bus = np.fromiter(
-            (_bus_index(m.channel, self._bus_table) for m in msgs), dtype="u1", count=len(msgs)
+            (self._bus_table.index(m.channel) for m in msgs), dtype="u1", count=len(msgs)
         )
         return self._block(msgs, self._start_session_s + (ts - self.log_t0_s), bus)
 
@@ -759,11 +541,6 @@ def read_can_log(
 __all__ = [
     "CanBusSource",
     "CanLogSource",
-    "SignalDecoder",
-    "SignalRequest",
     "decode_stored_frames",
-    "load_dbc",
-    "messages_to_frames",
     "read_can_log",
-    "resolve_signals",
 ]

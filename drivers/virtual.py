@@ -45,8 +45,7 @@ from drivers.protocol import (
     encode_data,
     encode_info,
 )
-
-G_MPS2 = 9.80665
+from fielddiag.units import GRAVITY_MPS2 as G_MPS2
 
 #: DBC of the virtual ECU. SPEED (0x0B4) and WHEEL_SPEEDS (0x0AA) have the byte layout,
 #: scaling and names of the Toyota RAV4 powertrain DBC of opendbc (MIT, Copyright (c) 2020

@@ -24,9 +24,7 @@ import numpy as np
 from scipy import fft as sp_fft
 from scipy import signal
 
-#: Standard gravity [m/s^2]; an upward accelerometer at rest reads ``+GRAVITY_MPS2``.
-GRAVITY_MPS2 = 9.80665
-
+from fielddiag.units import GRAVITY_MPS2  # noqa: F401 - re-exported: dsp.GRAVITY_MPS2
 
 # ---------------------------------------------------------------------------------------
 # Offsets and filters

@@ -20,6 +20,10 @@ class ImportFormatError(FieldDiagError):
     """A file being imported is malformed (missing column, bad number, bad time axis...)."""
 
 
+class DbcError(FieldDiagError):
+    """A CAN database (DBC) is missing or unreadable, or lacks a message or signal asked for."""
+
+
 class InsufficientDataError(FieldDiagError):
     """The recording cannot support the requested answer (too short, too little excitation...)."""
 

@@ -24,6 +24,7 @@ import numpy as np
 
 from fielddiag import sim
 from fielddiag.errors import FieldDiagError
+from fielddiag.units import GRAVITY_MPS2
 
 
 @dataclass(frozen=True)
@@ -460,7 +461,7 @@ def _cases() -> list[Scenario]:
         Scenario(
             "clipping",
             "wheel accelerometer saturating at +-4 g",
-            wheel_sensor={"clip_mps2": 4 * 9.80665},
+            wheel_sensor={"clip_mps2": 4 * GRAVITY_MPS2},
             road_class="D",
             seed=72,
             speed_range_mps=(8.0, 20.0),

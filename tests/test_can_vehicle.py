@@ -7,28 +7,23 @@ import subprocess
 import sys
 import time
 import uuid
-from pathlib import Path
 
 import can
 import numpy as np
 import pytest
+from _real_data import shared_data
 
 from drivers import open_source
 from drivers.base import SessionClock
-from drivers.can_vehicle import (
-    CanBusSource,
-    decode_stored_frames,
-    load_dbc,
-    read_can_log,
-    resolve_signals,
-)
+from drivers.can_decode import load_dbc, resolve_signals
+from drivers.can_vehicle import CanBusSource, decode_stored_frames, read_can_log
 from drivers.virtual import VirtualECU
 from fielddiag.channels import SessionMetadata
-from fielddiag.errors import DeviceError
+from fielddiag.errors import DbcError, DeviceError
 from fielddiag.recorder import Recorder
 from fielddiag.session import SessionReader
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+DATA = shared_data()
 LOG = DATA / "can" / "comma2k19_rav4_2018-08-02_seg40.log"
 DBC = DATA / "can" / "toyota_new_mc_pt_generated.dbc"
 ADAS_DBC = DATA / "can" / "toyota_adas.dbc"
@@ -107,16 +102,16 @@ def test_other_log_formats_read_the_same(tmp_path, suffix):
 def test_signal_names_are_checked():
     db = load_dbc(DBC)
     (r,) = resolve_signals(db, ["speed_kmh=SPEED.SPEED"])
-    assert (r.name, r.message, r.signal) == ("speed_kmh", "SPEED", "SPEED")
-    with pytest.raises(DeviceError, match="no message of the DBC has a signal 'SPEEED'"):
+    assert (r.name, r.message.name, r.signal.name) == ("speed_kmh", "SPEED", "SPEED")
+    with pytest.raises(DbcError, match="signal 'SPEEED' is not in the DBC; did you mean SPEED"):
         resolve_signals(db, ["SPEEED"])
-    with pytest.raises(DeviceError, match="in several messages"):
+    with pytest.raises(DbcError, match="in several messages"):
         resolve_signals(db, ["CHECKSUM"])
-    with pytest.raises(DeviceError, match="no signal 'X'"):
+    with pytest.raises(DbcError, match="no signal 'X'"):
         resolve_signals(db, ["SPEED.X"])
-    with pytest.raises(DeviceError, match="named twice"):
+    with pytest.raises(DbcError, match="named twice"):
         resolve_signals(db, ["a=SPEED.SPEED", "a=WHEEL_SPEEDS.WHEEL_SPEED_FL"])
-    with pytest.raises(DeviceError, match="does not exist"):
+    with pytest.raises(DbcError, match="DBC file /nonexistent.dbc not found"):
         load_dbc("/nonexistent.dbc")
     with pytest.raises(DeviceError, match="need a DBC"):
         open_source(f"canlog://{LOG}?signal=SPEED").open()
@@ -222,8 +217,8 @@ def test_recorded_frames_decode_again_with_another_dbc(tmp_path, rav4):
     )
     assert errors == 0
     assert np.array_equal(sig["WHEEL_SPEED_RR"][1], ref_sig["WHEEL_SPEED_RR"][1])
-    yaw = sig["yaw"][1]
-    assert {s.name: s.unit for s in specs}["yaw"] == "deg/s"
+    yaw = np.degrees(sig["yaw"][1])
+    assert {s.name: s.unit for s in specs}["yaw"] == "rad/s"  # stored in SI, as imported
     assert yaw.min() == pytest.approx(-2.27, abs=0.02) and yaw.max() == pytest.approx(
         0.42, abs=0.02
     )

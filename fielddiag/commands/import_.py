@@ -44,7 +44,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="CAN log/MDF4: DBC to decode CAN frames (repeatable; BUS=FILE binds it "
                         "to one bus, e.g. can1=radar.dbc)")
     p.add_argument("--signal", action="append", metavar="NAME",
-                   help="CAN log/MDF4: signal to decode, SIGNAL or MESSAGE.SIGNAL (repeatable; "
+                   help="CAN log/MDF4: signal to decode, SIGNAL, MESSAGE.SIGNAL or "
+                        "ALIAS=MESSAGE.SIGNAL (repeatable; "
                         "default: vehicle speed and wheel speeds)")
     p.add_argument("--channel", action="append", metavar="NAME",
                    help="MDF4: channel to import (repeatable; default: all numeric channels)")

@@ -54,7 +54,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         action="append",
         default=[],
         help="DBC signal to decode and store: SIGNAL, MESSAGE.SIGNAL or "
-        "ALIAS=MESSAGE.SIGNAL (repeatable; km/h and mph become m/s)",
+        "ALIAS=MESSAGE.SIGNAL (repeatable; stored in SI: km/h -> m/s, deg -> rad, rpm -> rad/s...)",
     )
     p.add_argument(
         "--speed-signal",

@@ -71,6 +71,7 @@ from fielddiag.blas import single_threaded_blas
 from fielddiag.errors import FieldDiagError, InsufficientDataError
 from fielddiag.identify.greybox_results import GreyBoxResult, ParameterEstimate, SessionFit
 from fielddiag.identify.terms import ForceModel, linear_model, model_force
+from fielddiag.units import ACCEL_UNITS, GRAVITY_MPS2
 
 __all__ = [
     "GRAVITY_MPS2",
@@ -85,8 +86,6 @@ __all__ = [
     "validate_greybox",
 ]
 
-#: Standard gravity [m/s^2] (the same value as fielddiag.sim and fielddiag.dsp).
-GRAVITY_MPS2 = 9.80665
 #: Scale of the initial-state nuisances in the fit: 1 mm, 1 cm/s.
 _NUISANCE_SCALE = np.array([1e-3, 1e-2])
 
@@ -292,13 +291,8 @@ class GreyBoxData:
                                       name=name, start_s=t0)
 
 
-#: Acceleration units understood, and their factor to m/s^2.
-ACCEL_UNITS = {"m/s2": 1.0, "m/s^2": 1.0, "m/s²": 1.0, "m s-2": 1.0, "mps2": 1.0,
-               "g": GRAVITY_MPS2, "mg": 1e-3 * GRAVITY_MPS2}
-
-
 def accel_unit_factor(unit: str, channel: str = "") -> float:
-    """Factor from a channel's acceleration unit to m/s^2 (``g`` -> 9.80665).
+    """Factor from a channel's acceleration unit to m/s^2 (``g`` -> standard gravity).
 
     Raises
     ------

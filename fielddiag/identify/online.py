@@ -43,10 +43,9 @@ from numba import njit
 
 from fielddiag.errors import ChannelNotFoundError, FieldDiagError
 from fielddiag.identify.terms import ForceModel, linear_model, model_force
+from fielddiag.units import GRAVITY_MPS2
 
 __all__ = ["OnlineEstimator", "advice_line", "format_estimate", "format_status"]
-
-GRAVITY_MPS2 = 9.80665
 
 # indices into the scalar state vector of the kernel
 _S_TLAST = 0  # time of the last sample
@@ -91,7 +90,7 @@ def _online_block(t, a_wheel, a_body, ad, bd, wc2, twozw, consts, theta, pm, q_r
     ph = np.zeros(npar + 1)
     for i in range(n):
         ur = a_body[i] - a_wheel[i]
-        ub = a_body[i] - 9.80665
+        ub = a_body[i] - GRAVITY_MPS2
         gap = st[_S_STARTED] == 0.0 or (t[i] - st[_S_TLAST]) > 1.5 * dt
         st[_S_TLAST] = t[i]
         if gap:

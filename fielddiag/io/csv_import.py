@@ -28,12 +28,7 @@ import numpy as np
 from fielddiag.channels import ChannelSpec, SessionMetadata, SignalSpec
 from fielddiag.errors import ImportFormatError
 from fielddiag.session import unique_name, write_session
-
-G_MPS2 = 9.80665
-
-ACCEL_UNITS = {"m/s2": 1.0, "m/s^2": 1.0, "mps2": 1.0, "g": G_MPS2}
-TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6}
-SPEED_UNITS = {"m/s": 1.0, "km/h": 1 / 3.6, "mph": 0.44704}
+from fielddiag.units import QUANTITIES, factor_to_si
 
 #: role -> (unit stored, kind of quantity)
 KNOWN_ROLES = {
@@ -199,15 +194,18 @@ def _check_time(name: str, time_column: str, t: np.ndarray, line_numbers: np.nda
 
 
 def _check_units(name: str, options: CsvImportOptions) -> None:
-    for what, unit, known in (
-        ("acceleration", options.accel_unit, ACCEL_UNITS),
-        ("time", options.time_unit, TIME_UNITS),
-        ("speed", options.speed_unit, SPEED_UNITS),
+    for what, unit in (
+        ("acceleration", options.accel_unit),
+        ("time", options.time_unit),
+        ("speed", options.speed_unit),
     ):
-        if unit not in known:
+        try:
+            factor_to_si(unit, what)
+        except KeyError:
             raise ImportFormatError(
-                f"{name}: unknown {what} unit {unit!r}; use one of {', '.join(known)}"
-            )
+                f"{name}: unknown {what} unit {unit!r}; use one of "
+                f"{', '.join(QUANTITIES[what][0])}"
+            ) from None
 
 
 def check_role_names(name: str, roles: Mapping[str, str]) -> None:
@@ -260,7 +258,7 @@ def import_csv(
     if len(set(cols)) != len(cols):
         raise ImportFormatError("the same column is mapped twice (check --time and --role)")
     data, line_numbers = read_csv_table(path, cols, options.delimiter)
-    t = data[options.time_column] * TIME_UNITS[options.time_unit]
+    t = data[options.time_column] * factor_to_si(options.time_unit, "time")
     _check_time(path.name, options.time_column, t, line_numbers)
     rate_hz = 1.0 / float(np.median(np.diff(t)))
 
@@ -273,10 +271,10 @@ def import_csv(
         unit, kind = KNOWN_ROLES.get(role, ("", "plain"))
         if kind == "speed":
             spec = SignalSpec("vehicle_speed", unit="m/s", source="csv", message=col, role="speed")
-            signals[spec] = (t, values * SPEED_UNITS[options.speed_unit])
+            signals[spec] = (t, values * factor_to_si(options.speed_unit, "speed"))
             continue
         if kind == "accel":
-            values = values * ACCEL_UNITS[options.accel_unit]
+            values = values * factor_to_si(options.accel_unit, "acceleration")
         if role in KNOWN_ROLES:
             name = {"wheel": "wheel_z", "body": "body_z"}.get(role, role)
             channels.append(ChannelSpec(name, unit=unit, role=role, sensor=f"csv:{col}"))

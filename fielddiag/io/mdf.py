@@ -46,6 +46,7 @@ from typing import Any
 
 import numpy as np
 
+from drivers.can_decode import FD_LENGTHS, payload_lengths
 from fielddiag.channels import ChannelSpec, Event, Gap, SessionMetadata, SignalSpec
 from fielddiag.errors import FieldDiagError, ImportFormatError, SessionError
 from fielddiag.session import (
@@ -61,6 +62,7 @@ from fielddiag.session import (
     SessionReader,
     unique_name,
 )
+from fielddiag.units import to_si
 
 MANIFEST_NAME = "fielddiag_session.json"
 MANIFEST_FORMAT = "fielddiag-mdf"
@@ -97,8 +99,6 @@ CAN_REMOTE_DTYPE = np.dtype(
     ]
 )
 _BUS_KINDS = ("CAN_DataFrame", "CAN_ErrorFrame", "CAN_RemoteFrame")
-#: payload length of each CAN FD DLC code
-_FD_LENGTHS = np.array([0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64])
 
 
 def asammdf_available() -> bool:
@@ -141,9 +141,8 @@ def _frames_to_bus_records(frames: np.ndarray) -> list[tuple[str, np.ndarray, np
         rec[f"{kind}.IDE"] = (f["flags"] & CAN_FLAG_EXTENDED) != 0
         fd = (f["flags"] & CAN_FLAG_FD) != 0
         # the session stores the byte count; MDF (like the bus) the 4-bit DLC code for CAN FD
-        code = np.searchsorted(_FD_LENGTHS, np.minimum(f["dlc"], CAN_DATA_BYTES))
-        rec[f"{kind}.DLC"] = np.where(fd, code, f["dlc"])
-        length = np.where(fd, np.minimum(f["dlc"], CAN_DATA_BYTES), np.minimum(f["dlc"], 8))
+        length = payload_lengths(f)
+        rec[f"{kind}.DLC"] = np.where(fd, np.searchsorted(FD_LENGTHS, length), f["dlc"])
         rec[f"{kind}.DataLength"] = length
         rec[f"{kind}.Dir"] = np.where((f["flags"] & CAN_FLAG_RX) != 0, 0, 1)
         if kind != "CAN_RemoteFrame":
@@ -401,7 +400,7 @@ def _read_bus_frames(mdf, source: str) -> np.ndarray:
         if dlc is not None:
             dlc = dlc.astype("i8")
             # MDF stores the 4-bit DLC code; the session stores the byte count for CAN FD
-            f["dlc"] = np.where(fd, _FD_LENGTHS[np.clip(dlc, 0, 15)], dlc)
+            f["dlc"] = np.where(fd, FD_LENGTHS[np.clip(dlc, 0, 15)], dlc)
         elif length is not None:
             f["dlc"] = length
         data = field("DataBytes")
@@ -684,7 +683,6 @@ def _plan_generic(
     user: SessionMetadata | None, has_dbc: bool, first_frame_s: float | None,
 ) -> dict:
     """Channels of any MDF4 file: role channels and one group as DAQ, the rest as signals."""
-    from fielddiag.io.canlog import si_unit
     from fielddiag.io.csv_import import KNOWN_ROLES
     from fielddiag.io.formats import merged_metadata
 
@@ -751,7 +749,7 @@ def _plan_generic(
                     f"{path.name}: channel {n!r} for --role {r} is not a numeric time series"
                 )
         for (ci, _n), ch in zip([m for m in members if m[1] in read_names], read, strict=True):
-            factor, unit = si_unit(ch.unit)
+            factor, unit = to_si(ch.unit)
             role = role_of.get((daq_group, ci), "other")
             if role == "other":
                 name, spec_role = ch.name, "other"
@@ -772,7 +770,7 @@ def _plan_generic(
         if not read:
             raise ImportFormatError(f"{path.name}: channel {speed_channel!r} is not numeric")
         ch = read[0]
-        factor, unit = si_unit(ch.unit or "m/s")
+        factor, unit = to_si(ch.unit or "m/s")
         signals[SignalSpec(unique("vehicle_speed"), unit=unit, source="mdf",
                            message=speed_channel, role="speed")] = (
             ch.timestamps, ch.physical * factor)
@@ -783,7 +781,7 @@ def _plan_generic(
     for gi, members in sorted(by_group.items()):
         acq = mdf.groups[gi].channel_group.acq_name or f"group {gi}"
         for ch in _read_group(mdf, gi, sorted(members)):
-            factor, unit = si_unit(ch.unit)
+            factor, unit = to_si(ch.unit)
             signals[SignalSpec(unique(ch.name), unit=unit, source="mdf", message=str(acq))] = (
                 ch.timestamps, ch.physical * factor)
     starts = [float(t[0]) for t, _ in signals.values() if t.size]

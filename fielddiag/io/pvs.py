@@ -31,7 +31,6 @@ synthetic file written in this exact layout.
 
 from __future__ import annotations
 
-import math
 import os
 from pathlib import Path
 
@@ -39,6 +38,7 @@ import numpy as np
 
 from fielddiag.channels import ChannelSpec, Event, SessionMetadata, SignalSpec
 from fielddiag.errors import ImportFormatError
+from fielddiag.units import DEG_TO_RAD
 
 POSITIONS = ("dashboard", "above_suspension", "below_suspension")
 
@@ -53,7 +53,7 @@ MPU_COLUMNS = (
 #: The columns ``dataset_gps_mpu_<side>.csv`` adds after :data:`MPU_COLUMNS`.
 GPS_COLUMNS = ("timestamp_gps", "latitude", "longitude", "speed")
 
-_UNITS = {"acc": ("m/s2", 1.0), "gyro": ("rad/s", math.pi / 180), "mag": ("T", 1e-6),
+_UNITS = {"acc": ("m/s2", 1.0), "gyro": ("rad/s", DEG_TO_RAD), "mag": ("T", 1e-6),
           "temp": ("degC", 1.0)}
 _ROLE_OF = {"below_suspension": ("wheel", "wheel_z"), "above_suspension": ("body", "body_z")}
 

@@ -7,9 +7,8 @@ import math
 import numpy as np
 
 from fielddiag.errors import FieldDiagError
+from fielddiag.units import GRAVITY_MPS2 as G_MPS2  # noqa: F401 - the simulator's name
 
-#: Standard gravity [m/s^2]. An upward accelerometer at rest reads ``+G_MPS2``.
-G_MPS2 = 9.80665
 #: Lowest internal integration rate [Hz].
 MIN_INTERNAL_RATE_HZ = 4000.0
 
