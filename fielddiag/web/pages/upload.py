@@ -12,11 +12,16 @@ from nicegui import ui
 
 from fielddiag.catalog import OutsideRootError, resolve_under_root
 from fielddiag.channels import SessionMetadata
-from fielddiag.io.csv_import import ACCEL_UNITS, SPEED_UNITS, TIME_UNITS, CsvImportOptions
+from fielddiag.io.csv_import import CsvImportOptions
+from fielddiag.units import ACCEL_UNITS, SPEED_UNITS, TIME_UNITS
 from fielddiag.web.layout import notify_error
 
 IMPORT_FOLDER = "imports"
 _DEFAULTS = CsvImportOptions(roles={}, time_column="")
+#: The units offered (the tables also hold spellings such as "m/s^2" that the CLI accepts).
+_CHOICES = {"accel": ("m/s2", "g", "mg"), "time": tuple(TIME_UNITS), "speed": ("m/s", "km/h",
+                                                                             "mph")}
+assert set(_CHOICES["accel"]) <= set(ACCEL_UNITS) and set(_CHOICES["speed"]) <= set(SPEED_UNITS)
 _SAFE_NAME = re.compile(r"[^A-Za-z0-9_.\-]+")
 
 
@@ -67,11 +72,11 @@ def import_panel(state, on_imported: Callable[[], Awaitable[None] | None]) -> No
                         "w-40").mark("csv-speed")
                 with ui.row().classes("gap-2"):
                     # the same units and defaults as `fielddiag import`
-                    accel_unit = ui.select(list(ACCEL_UNITS), value=_DEFAULTS.accel_unit,
+                    accel_unit = ui.select(list(_CHOICES["accel"]), value=_DEFAULTS.accel_unit,
                                            label="acceleration unit").classes("w-40")
-                    time_unit = ui.select(list(TIME_UNITS), value=_DEFAULTS.time_unit,
+                    time_unit = ui.select(list(_CHOICES["time"]), value=_DEFAULTS.time_unit,
                                           label="time unit").classes("w-28")
-                    speed_unit = ui.select(list(SPEED_UNITS), value=_DEFAULTS.speed_unit,
+                    speed_unit = ui.select(list(_CHOICES["speed"]), value=_DEFAULTS.speed_unit,
                                            label="speed unit").classes("w-28")
                     vehicle = ui.input("vehicle").classes("w-40").mark("csv-vehicle")
                     corner = ui.input("corner").classes("w-32")
