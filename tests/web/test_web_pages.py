@@ -322,8 +322,10 @@ async def test_diagnose_page_runs_the_diagnosis(dashboard_user, sessions_root: P
     params = {r["k"]: r for r in _the(user, "linear-parameters").rows}
     k_key = "suspension_stiffness_n_per_m_per_kg"
     k_row = params["suspension stiffness [N/m per kg]"]
-    assert float(k_row["refit"]) == pytest.approx(stored["augmented_model"][k_key], rel=1e-3)
-    assert float(k_row["alone"]) == pytest.approx(stored["linear_model"][k_key], rel=1e-3)
+    for col, model in (("refit", "augmented_model"), ("alone", "linear_model")):
+        value, std = (float(v) for v in k_row[col].split(" ± "))  # every value with its std
+        assert value == pytest.approx(stored[model][k_key], rel=1e-3)
+        assert std == pytest.approx(stored[f"{model}_std"][k_key], rel=0.05)
     assert len(params) == len(stored["augmented_model"])
     await user.should_see("diagnosis done")
     assert_diagnosis_plots(user, stored)
@@ -339,6 +341,16 @@ def assert_diagnosis_plots(user, stored: dict) -> None:
     windows = [(a["xAxis"], b["xAxis"]) for a, b in fit["series"][0]["markArea"]["data"]]
     assert windows == [(w["start_s"], w["end_s"]) for w in where["time_windows_s"]]
     assert any(a < FRICTION_BUMP_AT_S < b for a, b in windows)
+    # under the fit, what each model misses: recording minus model, point by point
+    res = _the(user, "residual-chart").options["series"]
+    assert [x["name"] for x in res] == ["residual, linear model", "residual, with findings"]
+    rec = np.array(fit["series"][0]["data"], dtype=float)
+    for r, m in zip(res, fit["series"][1:], strict=True):
+        got, model = np.array(r["data"], dtype=float), np.array(m["data"], dtype=float)
+        np.testing.assert_allclose(got[:, 1], rec[:, 1] - model[:, 1], atol=1e-3)
+    lin_rms, aug_rms = (float(np.sqrt(np.mean(np.array(r["data"], float)[:, 1] ** 2)))
+                        for r in res)
+    assert aug_rms < lin_rms  # the finding shrinks the residual on held-out data
     # the residual spectrum with the band where it exceeds the noise
     band = _the(user, "band-chart").options["series"][0]["markArea"]["data"]
     assert [(a["xAxis"], b["xAxis"]) for a, b in band] == [tuple(where["band_hz"])]
@@ -391,6 +403,30 @@ async def test_diagnose_page_shows_a_stored_result(dashboard_user, sessions_root
     assert chart.options["series"][0]["markArea"]["data"] == [[{"xAxis": 12.0},
                                                                {"xAxis": 13.0}]]
     assert chart.options["series"][0]["name"] == "car-a/before.h5 body"
+
+
+async def test_an_adequate_car_gets_no_departure_map_or_outline(dashboard_user,
+                                                                 sessions_root: Path) -> None:
+    """On a car judged adequate, a map of the model's small misses with a region outlined
+    reads as a fault: neither is drawn, though the result holds both."""
+    user = dashboard_user
+    grid = [[0.1] * 12 for _ in range(12)]
+    stored = {
+        "mode": "pair", "verdict": "adequate",
+        "baseline": {"nrmse": 0.03, "nrmse_validation": 0.031},
+        "augmented": {"nrmse": 0.03, "nrmse_validation": 0.031},
+        "findings": [], "warnings": [],
+        "departure_map": {"r_edges_m": list(np.linspace(-0.03, 0.03, 13)),
+                          "rdot_edges_mps": list(np.linspace(-0.3, 0.3, 13)),
+                          "mean": grid, "count": [[50] * 12 for _ in range(12)]},
+        "mismatch": {"regions": [{"name": "x", "r_min": -0.01, "r_max": 0.0,
+                                  "rdot_min": -0.1, "rdot_max": 0.1}]},
+    }
+    result_path(sessions_root / "car-a" / "before.h5", "diagnose").write_text(json.dumps(stored))
+    await user.open("/diagnose?session=car-a%2Fbefore.h5")
+    await user.should_see("The linear model is adequate", retries=60)
+    with user:
+        assert _count("region-chart") == 0 and _count("region-text") == 0
 
 
 async def test_navigation_keeps_one_page(dashboard_user) -> None:
