@@ -613,7 +613,7 @@ def _open_h5(path: Path) -> tuple[h5py.File, bool, str]:
     a truncated file. SWMR read mode, which skips HDF5's own end-of-file check, is used
     only for a file whose superblock says a writer has it open.
     """
-    from fielddiag.session_guard import precheck
+    from fielddiag.session_guard import open_swmr_read, precheck
 
     check = precheck(path)
     try:
@@ -623,7 +623,7 @@ def _open_h5(path: Path) -> tuple[h5py.File, bool, str]:
             # A writer still has it open, or was killed: SWMR read mode opens it anyway
             # and sees everything flushed.
             try:
-                return h5py.File(path, "r", libver="latest", swmr=True), True, str(first)
+                return open_swmr_read(path), True, str(first)
             except OSError:
                 pass
         raise SessionError(
