@@ -145,13 +145,15 @@ class SessionSummary:
 
 
 def _read_header(path: Path, rel: str, st: os.stat_result) -> SessionSummary:
-    """Summary from the session header (no samples read)."""
-    from fielddiag.session import SessionReader
+    """Summary from the session header (no samples read). The file is opened through
+    :func:`fielddiag.session_guard.open_untrusted`: a truncated or damaged file is listed
+    with its error, and one that would hang the reader is refused within a time limit."""
+    from fielddiag.session_guard import open_untrusted
 
     base = {"path": rel, "name": path.name, "size_bytes": st.st_size,
             "modified_unix_s": st.st_mtime}
     try:
-        with SessionReader(path) as s:
+        with open_untrusted(path) as s:
             md = s.metadata
             gaps = s.gaps
             return SessionSummary(

@@ -288,8 +288,8 @@ def _check_object_header(p: Path, fh, at: int, end: int) -> None:
 #: fails (the writer may be half way through writing it), sleeping 1 ns, 2 ns, 4 ns...
 #: between attempts; its default of 100 attempts makes a damaged file wait for ages (more
 #: than 15 minutes were seen). 28 attempts retry for about 0.27 s in all, ample for a
-#: writer's flush.
-SWMR_READ_ATTEMPTS = 28
+#: writer's flush. ``FIELDDIAG_SWMR_READ_ATTEMPTS`` overrides it.
+SWMR_READ_ATTEMPTS = int(os.environ.get("FIELDDIAG_SWMR_READ_ATTEMPTS", "28"))
 _set_read_attempts = None
 
 
