@@ -26,6 +26,7 @@ message naming the file.
 
 from __future__ import annotations
 
+import atexit
 import json
 import os
 import select
@@ -364,6 +365,14 @@ def _worker_main() -> None:  # pragma: no cover (runs in the worker process)
     from fielddiag.errors import FieldDiagError
     from fielddiag.session import SessionReader
 
+    parent = int(sys.argv[1]) if len(sys.argv) > 1 else os.getppid()
+
+    def orphaned() -> None:  # the caller died while a read hangs here: go too
+        while os.getppid() == parent:
+            time.sleep(1.0)
+        os._exit(0)
+
+    threading.Thread(target=orphaned, daemon=True).start()
     out = sys.stdout
     out.write('{"ready": true}\n')
     out.flush()
@@ -389,7 +398,7 @@ class _Worker:
 
     def __init__(self) -> None:
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "fielddiag.session_guard"],
+            [sys.executable, "-m", "fielddiag.session_guard", str(os.getpid())],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
             close_fds=True,
         )
@@ -439,6 +448,7 @@ class _Worker:
 
 
 _worker: _Worker | None = None
+atexit.register(lambda: stop_worker())
 _worker_lock = threading.Lock()
 _cache: OrderedDict[tuple, str] = OrderedDict()
 _cache_lock = threading.Lock()
