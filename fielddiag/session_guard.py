@@ -360,12 +360,24 @@ def _touch(reader) -> None:
             ds[()]
 
 
-def _worker_main() -> None:  # pragma: no cover (runs in the worker process)
-    """The worker: one JSON request per line on stdin, one JSON answer per line."""
+def _answer(path: str) -> dict:
+    """The worker's verdict on one file."""
     from fielddiag.errors import FieldDiagError
     from fielddiag.session import SessionReader
 
-    parent = int(sys.argv[1]) if len(sys.argv) > 1 else os.getppid()
+    try:
+        with SessionReader(path) as s:
+            _touch(s)
+        return {"ok": True}
+    except FieldDiagError as exc:
+        return {"ok": False, "error": str(exc)}
+    except Exception as exc:  # noqa: BLE001 (any failure of a bad file is its verdict)
+        return {"ok": False, "error": f"{path} is not a readable fielddiag session "
+                f"({type(exc).__name__}: {exc}); copy it again from the original"}
+
+
+def _serve(rfd: int, wfd: int, parent: int) -> None:  # pragma: no cover (in the worker)
+    """The worker's loop: one JSON request per line in, one JSON answer per line out."""
 
     def orphaned() -> None:  # the caller died while a read hangs here: go too
         while os.getppid() == parent:
@@ -373,22 +385,24 @@ def _worker_main() -> None:  # pragma: no cover (runs in the worker process)
         os._exit(0)
 
     threading.Thread(target=orphaned, daemon=True).start()
-    out = sys.stdout
-    out.write('{"ready": true}\n')
-    out.flush()
-    for line in sys.stdin:
-        path = json.loads(line)["path"]
-        try:
-            with SessionReader(path) as s:
-                _touch(s)
-            answer = {"ok": True}
-        except FieldDiagError as exc:
-            answer = {"ok": False, "error": str(exc)}
-        except Exception as exc:  # noqa: BLE001 (any failure of a bad file is its verdict)
-            answer = {"ok": False, "error": f"{path} is not a readable fielddiag session "
-                      f"({type(exc).__name__}: {exc}); copy it again from the original"}
-        out.write(json.dumps(answer) + "\n")
-        out.flush()
+    os.write(wfd, b'{"ready": true}\n')
+    with os.fdopen(rfd, "r", encoding="utf-8") as requests:
+        for line in requests:
+            answer = _answer(json.loads(line)["path"])
+            os.write(wfd, (json.dumps(answer).replace("\n", " ") + "\n").encode())
+
+
+def _worker_main() -> None:  # pragma: no cover (runs in the worker process)
+    parent = int(sys.argv[1]) if len(sys.argv) > 1 else os.getppid()
+    _serve(sys.stdin.fileno(), sys.stdout.fileno(), parent)
+
+
+def _can_fork() -> bool:
+    """Fork the worker (about 10 ms, h5py already loaded) from a process with one thread
+    only, such as the CLI; with more threads (the dashboard) one of them could hold a lock
+    the child would wait for forever, so the worker is a new interpreter there (~0.5 s,
+    once)."""
+    return hasattr(os, "fork") and threading.active_count() == 1
 
 
 class _Worker:
@@ -397,29 +411,59 @@ class _Worker:
     START_TIMEOUT_S = 60.0
 
     def __init__(self) -> None:
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "fielddiag.session_guard", str(os.getpid())],
-            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
-            close_fds=True,
-        )
         self._buf = b""
+        self._proc: subprocess.Popen | None = None
+        self.exited = False
+        if _can_fork():
+            import fielddiag.session  # noqa: F401 (loaded once, before the fork)
+
+            req_r, self.wfd = os.pipe()
+            self.rfd, ans_w = os.pipe()
+            parent = os.getpid()
+            pid = os.fork()
+            if pid == 0:  # pragma: no cover (the child)
+                try:
+                    os.close(self.wfd)
+                    os.close(self.rfd)
+                    _serve(req_r, ans_w, parent)
+                finally:
+                    os._exit(0)
+            os.close(req_r)
+            os.close(ans_w)
+            self.pid = pid
+        else:
+            self._proc = subprocess.Popen(
+                [sys.executable, "-m", "fielddiag.session_guard", str(os.getpid())],
+                stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+                close_fds=True,
+            )
+            self.pid = self._proc.pid
+            self.wfd = self._proc.stdin.fileno()
+            self.rfd = self._proc.stdout.fileno()
         if self._line(self.START_TIMEOUT_S) is None:
             self.kill()
-            raise RuntimeError("the session reader worker did not start")
+            raise SessionError("the session reader process did not start; try again")
+
+    def alive(self) -> bool:
+        if self.exited:
+            return False
+        if self._proc is not None:
+            self.exited = self._proc.poll() is not None
+        else:
+            self.exited = os.waitpid(self.pid, os.WNOHANG) != (0, 0)
+        return not self.exited
 
     def _line(self, timeout_s: float) -> dict | None:
         """The next answer line, or None when none came in time (or the worker died)."""
-        assert self.proc.stdout is not None
-        fd = self.proc.stdout.fileno()
         deadline = time.monotonic() + timeout_s
         while b"\n" not in self._buf:
             left = deadline - time.monotonic()
             if left <= 0:
                 return None
-            ready, _, _ = select.select([fd], [], [], left)
+            ready, _, _ = select.select([self.rfd], [], [], left)
             if not ready:
                 return None
-            chunk = os.read(fd, 65536)
+            chunk = os.read(self.rfd, 65536)
             if not chunk:
                 return None
             self._buf += chunk
@@ -427,24 +471,34 @@ class _Worker:
         return json.loads(line)
 
     def ask(self, path: str, timeout_s: float) -> dict | None:
-        assert self.proc.stdin is not None
         try:
-            self.proc.stdin.write((json.dumps({"path": path}) + "\n").encode())
-            self.proc.stdin.flush()
+            os.write(self.wfd, (json.dumps({"path": path}) + "\n").encode())
         except OSError:
             return None
         return self._line(timeout_s)
 
     def kill(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.kill()
-        self.proc.wait()
-        for pipe in (self.proc.stdin, self.proc.stdout):
-            if pipe is not None:
+        if self.alive():
+            try:
+                os.kill(self.pid, 9)
+            except ProcessLookupError:
+                pass
+        if self._proc is not None:
+            self._proc.wait()
+            for pipe in (self._proc.stdin, self._proc.stdout):
                 try:
                     pipe.close()
                 except OSError:
                     pass
+        else:
+            if not self.exited:
+                os.waitpid(self.pid, 0)
+            for fd in (self.wfd, self.rfd):
+                try:
+                    os.close(fd)
+                except OSError:
+                    pass
+        self.exited = True
 
 
 _worker: _Worker | None = None
@@ -472,25 +526,29 @@ def probe(path: str | os.PathLike, timeout_s: float | None = None) -> str:
     """
     global _worker
     timeout_s = DEFAULT_TIMEOUT_S if timeout_s is None else float(timeout_s)
+    given = str(path)
     p = str(Path(path).absolute())
     with _worker_lock:
         t0 = time.monotonic()
         for _attempt in range(2):  # a worker that died since the last probe is replaced
-            if _worker is None or _worker.proc.poll() is not None:
+            if _worker is None or not _worker.alive():
+                if _worker is not None:
+                    _worker.kill()
                 _worker = _Worker()
             answer = _worker.ask(p, timeout_s)
             if answer is not None:
-                return "" if answer.get("ok") else str(answer.get("error", "unreadable"))
-            crashed = _worker.proc.poll() is not None
+                return "" if answer.get("ok") else str(
+                    answer.get("error", "unreadable")).replace(p, given)
+            crashed = not _worker.alive()
             _worker.kill()
             _worker = None
             if not crashed:
-                return (f"{path} is not a complete fielddiag session (it did not open within "
+                return (f"{given} is not a complete fielddiag session (it did not open within "
                         f"{timeout_s:g} s; the reader was stopped): copy it again from the "
                         "original")
             if time.monotonic() - t0 > timeout_s:
                 break
-        return (f"{path} is not a readable fielddiag session (the reader crashed on it): "
+        return (f"{given} is not a readable fielddiag session (the reader crashed on it): "
                 "copy it again from the original")
 
 
