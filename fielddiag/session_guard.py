@@ -47,6 +47,8 @@ __all__ = [
     "open_untrusted",
     "precheck",
     "probe",
+    "stop_worker",
+    "untrusted_info",
     "verify_untrusted",
 ]
 
@@ -340,12 +342,13 @@ def open_swmr_read(path: str | os.PathLike):
 
 
 # ---------------------------------------------------------------------- worker
-def _touch(reader) -> None:
-    """Read everything a summary or ``fielddiag info`` needs, and the first and last
-    samples of every dataset, so that a damaged index shows here and not later."""
+def _touch(reader) -> dict:
+    """Read everything a summary or ``fielddiag info`` needs (returned: the reader's
+    ``info()``), the whole chunk index and the first and last samples of every dataset,
+    so that a damaged index shows here and not later."""
     import h5py
 
-    reader.info()
+    info = reader.info()
     f = reader._file
     datasets: list[h5py.Dataset] = []
     f.visititems(lambda _n, o: datasets.append(o) if isinstance(o, h5py.Dataset) else None)
@@ -358,6 +361,7 @@ def _touch(reader) -> None:
             ds[-1:]
         elif ds.shape == ():
             ds[()]
+    return info
 
 
 def _answer(path: str) -> dict:
@@ -367,8 +371,7 @@ def _answer(path: str) -> dict:
 
     try:
         with SessionReader(path) as s:
-            _touch(s)
-        return {"ok": True}
+            return {"ok": True, "info": _touch(s)}
     except FieldDiagError as exc:
         return {"ok": False, "error": str(exc)}
     except Exception as exc:  # noqa: BLE001 (any failure of a bad file is its verdict)
@@ -524,6 +527,11 @@ def probe(path: str | os.PathLike, timeout_s: float | None = None) -> str:
     str
         Empty when the file opened and read; otherwise the one-line reason.
     """
+    return _probe(path, timeout_s)[0]
+
+
+def _probe(path: str | os.PathLike, timeout_s: float | None) -> tuple[str, dict | None]:
+    """(:func:`probe`'s verdict, the session's ``info()`` when it is good)."""
     global _worker
     timeout_s = DEFAULT_TIMEOUT_S if timeout_s is None else float(timeout_s)
     given = str(path)
@@ -537,19 +545,22 @@ def probe(path: str | os.PathLike, timeout_s: float | None = None) -> str:
                 _worker = _Worker()
             answer = _worker.ask(p, timeout_s)
             if answer is not None:
-                return "" if answer.get("ok") else str(
-                    answer.get("error", "unreadable")).replace(p, given)
+                if answer.get("ok"):
+                    info = answer.get("info") or {}
+                    info["path"] = given
+                    return "", info
+                return str(answer.get("error", "unreadable")).replace(p, given), None
             crashed = not _worker.alive()
             _worker.kill()
             _worker = None
             if not crashed:
                 return (f"{given} is not a complete fielddiag session (it did not open within "
                         f"{timeout_s:g} s; the reader was stopped): copy it again from the "
-                        "original")
+                        "original"), None
             if time.monotonic() - t0 > timeout_s:
                 break
         return (f"{given} is not a readable fielddiag session (the reader crashed on it): "
-                "copy it again from the original")
+                "copy it again from the original"), None
 
 
 def stop_worker() -> None:
@@ -586,7 +597,13 @@ def verify_untrusted(path: str | os.PathLike, timeout_s: float | None = None) ->
     SessionCorruptError
         The file is not a complete, readable session (one line naming the file).
     """
+    _verify(path, timeout_s)
+
+
+def _verify(path: str | os.PathLike, timeout_s: float | None) -> dict | None:
+    """:func:`verify_untrusted`; the session's ``info()`` when it was probed now."""
     p = Path(path)
+    info = None
     try:
         key = _key(p)
     except FileNotFoundError:
@@ -600,7 +617,7 @@ def verify_untrusted(path: str | os.PathLike, timeout_s: float | None = None) ->
     if verdict is None:
         try:
             precheck(p)
-            verdict = probe(p, timeout_s)
+            verdict, info = _probe(p, timeout_s)
         except SessionCorruptError as exc:
             verdict = str(exc)
         with _cache_lock:
@@ -609,6 +626,27 @@ def verify_untrusted(path: str | os.PathLike, timeout_s: float | None = None) ->
                 _cache.popitem(last=False)
     if verdict:
         raise SessionCorruptError(verdict)
+    return info
+
+
+def untrusted_info(path: str | os.PathLike, timeout_s: float | None = None) -> dict:
+    """:meth:`fielddiag.session.SessionReader.info` of an untrusted file.
+
+    A file not seen before is read by the worker (one open in all); one already found
+    good is opened in this process.
+
+    Raises
+    ------
+    SessionError, SessionCorruptError
+        As :func:`verify_untrusted`.
+    """
+    from fielddiag.session import SessionReader
+
+    info = _verify(path, timeout_s)
+    if info is None:
+        with SessionReader(path) as s:
+            info = s.info()
+    return info
 
 
 def open_untrusted(path: str | os.PathLike, timeout_s: float | None = None):
