@@ -120,6 +120,7 @@ def main() -> None:
         it = iter(paths)
         new = timed(lambda it=it: guard.open_untrusted(next(it)).close(), len(paths))
         cached = timed(lambda: guard.open_untrusted(paths[0]).close(), 50)
+        verdict = timed(lambda: guard.verify_untrusted(paths[0]), 500)
         infos = fresh_copies(good, folder, 30, mode + "-info")
         it2 = iter(infos)
         new_info = timed(lambda it2=it2: guard.untrusted_info(next(it2)), len(infos))
@@ -131,6 +132,7 @@ def main() -> None:
         print(f"  open_untrusted, good file seen before  {ms(cached)}"
               f"  -> overhead {(statistics.median(cached) - statistics.median(base)) * 1e3:.3f}"
               " ms")
+        print(f"  verify_untrusted alone, seen before    {ms(verdict)}")
         print(f"  untrusted_info, new good file          {ms(new_info)}"
               f"  (SessionReader open + info() in-process "
               f"{base_info * 1e3:.1f} ms, no guard)")
