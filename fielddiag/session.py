@@ -655,7 +655,11 @@ class SessionReader:
     """
 
     def __init__(self, path: str | os.PathLike) -> None:
+        from fielddiag import session_guard
+
         self.path = Path(path)
+        if session_guard.opens_guarded():  # the CLI: probed in a worker first (cached)
+            session_guard.verify_untrusted(self.path)
         self._file, self.swmr, why_swmr = _open_h5(self.path)
         try:
             self._load_header()

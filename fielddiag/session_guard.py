@@ -27,6 +27,7 @@ message naming the file.
 from __future__ import annotations
 
 import atexit
+import contextlib
 import json
 import os
 import select
@@ -35,6 +36,7 @@ import sys
 import threading
 import time
 from collections import OrderedDict
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -44,6 +46,7 @@ __all__ = [
     "FileCheck",
     "SessionCorruptError",
     "clear_cache",
+    "guarded_opens",
     "open_untrusted",
     "precheck",
     "probe",
@@ -381,6 +384,9 @@ def _answer(path: str) -> dict:
 
 def _serve(rfd: int, wfd: int, parent: int) -> None:  # pragma: no cover (in the worker)
     """The worker's loop: one JSON request per line in, one JSON answer per line out."""
+    global _guarded_depth, _worker
+    _guarded_depth = 0  # the worker opens files itself (a forked one inherits the switch)
+    _worker = None
 
     def orphaned() -> None:  # the caller died while a read hangs here: go too
         while os.getppid() == parent:
@@ -404,8 +410,12 @@ def _can_fork() -> bool:
     """Fork the worker (about 10 ms, h5py already loaded) from a process with one thread
     only, such as the CLI; with more threads (the dashboard) one of them could hold a lock
     the child would wait for forever, so the worker is a new interpreter there (~0.5 s,
-    once)."""
-    return hasattr(os, "fork") and threading.active_count() == 1
+    once). Nor is it forked while this process has an HDF5 file open."""
+    if not hasattr(os, "fork") or threading.active_count() != 1:
+        return False
+    import h5py
+
+    return h5py.h5f.get_obj_count(h5py.h5f.OBJ_ALL, h5py.h5f.OBJ_FILE) == 0
 
 
 class _Worker:
@@ -505,6 +515,7 @@ class _Worker:
 
 
 _worker: _Worker | None = None
+_guarded_depth = 0
 atexit.register(lambda: stop_worker())
 _worker_lock = threading.Lock()
 _cache: OrderedDict[tuple, str] = OrderedDict()
@@ -627,6 +638,24 @@ def _verify(path: str | os.PathLike, timeout_s: float | None) -> dict | None:
     if verdict:
         raise SessionCorruptError(verdict)
     return info
+
+
+@contextlib.contextmanager
+def guarded_opens() -> Iterator[None]:
+    """Within this block every :class:`~fielddiag.session.SessionReader` of this process
+    first calls :func:`verify_untrusted` (the CLI runs its commands so; cached, a file
+    already found good costs one ``stat``)."""
+    global _guarded_depth
+    _guarded_depth += 1
+    try:
+        yield
+    finally:
+        _guarded_depth -= 1
+
+
+def opens_guarded() -> bool:
+    """True inside :func:`guarded_opens`."""
+    return _guarded_depth > 0
 
 
 def untrusted_info(path: str | os.PathLike, timeout_s: float | None = None) -> dict:
