@@ -30,9 +30,11 @@ from fielddiag.session_guard import (
     SessionCorruptError,
     clear_cache,
     lookup3,
+    open_untrusted,
     precheck,
     probe,
     stop_worker,
+    untrusted_info,
     verify_untrusted,
 )
 
@@ -278,3 +280,25 @@ def test_not_a_session_at_all(tmp_path):
         precheck(tmp_path)
     with pytest.raises(SessionError, match="does not exist"):
         verify_untrusted(tmp_path / "missing.h5")
+
+
+def test_a_session_being_recorded_is_read_through_the_guard(tmp_path):
+    """The dashboard lists and shows a session while its writer appends to it."""
+    path = tmp_path / "live.h5"
+    w = SessionWriter(path, SessionMetadata(vehicle="live"), [ChannelSpec("x")],
+                      sample_rate_hz=100.0, flush_interval_s=3600.0)
+    try:
+        w.append_daq(np.arange(100.0)[:, None], time_s=np.arange(100) / 100)
+        w.flush()
+        assert precheck(path).writer_open
+        info = untrusted_info(path)  # read by the worker, in SWMR mode
+        assert info["samples"] == 100 and not info["closed_cleanly"]
+        w.append_daq(np.arange(100.0, 250.0)[:, None], time_s=np.arange(100, 250) / 100)
+        w.flush()
+        assert untrusted_info(path)["samples"] == 250  # changed: read again
+        with open_untrusted(path) as r:
+            assert r.n_samples == 250 and r.read("x")[-1] == 249.0
+    finally:
+        w.close()
+    info = untrusted_info(path)
+    assert info["closed_cleanly"] and info["samples"] == 250
