@@ -632,6 +632,11 @@ def _open_h5(path: Path) -> tuple[h5py.File, bool, str]:
         ) from None
 
 
+def _one_line(exc: BaseException) -> str:
+    """An exception's text on one line (HDF5 messages can span several)."""
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
 def _bisect_left(ds: h5py.Dataset, value: float, lo: int = 0, hi: int | None = None) -> int:
     """Binary search on a sorted 1-D dataset without reading it whole."""
     hi = ds.shape[0] if hi is None else hi
@@ -676,7 +681,8 @@ class SessionReader:
             raise
         except (KeyError, ValueError, TypeError, OSError, RuntimeError) as exc:
             self._file.close()
-            raise SessionError(f"{self.path} is not a valid fielddiag session ({exc})") from None
+            raise SessionError(f"{self.path} is not a valid fielddiag session "
+                               f"({_one_line(exc)}); copy it again from the original") from None
 
     def _load_header(self) -> None:
         f = self._file
