@@ -145,33 +145,34 @@ class SessionSummary:
 
 
 def _read_header(path: Path, rel: str, st: os.stat_result) -> SessionSummary:
-    """Summary from the session header (no samples read)."""
-    from fielddiag.session import SessionReader
+    """Summary from the session header (no samples read). The file is read through
+    :func:`fielddiag.session_guard.untrusted_info`: a truncated or damaged file is listed
+    with its error, and one that would hang the reader is refused within a time limit."""
+    from fielddiag.session_guard import untrusted_info
 
     base = {"path": rel, "name": path.name, "size_bytes": st.st_size,
             "modified_unix_s": st.st_mtime}
     try:
-        with SessionReader(path) as s:
-            md = s.metadata
-            gaps = s.gaps
-            return SessionSummary(
-                **base,
-                vehicle=str(md.vehicle),
-                corner=str(md.corner),
-                operator=str(md.operator),
-                created=str(md.created),
-                notes=str(md.notes),
-                duration_s=float(s.duration_s),
-                added_mass_kg=float(md.added_mass_kg),
-                sample_rate_hz=float(s.sample_rate_hz),
-                n_samples=int(s.n_samples),
-                channels=tuple(c.name for c in s.channels),
-                signals=tuple(sig.name for sig in s.signals),
-                n_events=len(s.events),
-                n_gaps=len(gaps),
-                samples_lost=int(sum(g.samples_lost for g in gaps)),
-                closed_cleanly=bool(s.closed_cleanly),
-            )
+        info = untrusted_info(path)
+        md = info["metadata"]
+        return SessionSummary(
+            **base,
+            vehicle=str(md["vehicle"]),
+            corner=str(md["corner"]),
+            operator=str(md["operator"]),
+            created=str(md["created"]),
+            notes=str(md["notes"]),
+            duration_s=float(info["duration_s"]),
+            added_mass_kg=float(md["added_mass_kg"]),
+            sample_rate_hz=float(info["sample_rate_hz"]),
+            n_samples=int(info["samples"]),
+            channels=tuple(c["name"] for c in info["channels"]),
+            signals=tuple(sig["name"] for sig in info["signals"]),
+            n_events=int(info["events"]),
+            n_gaps=len(info["gaps"]),
+            samples_lost=int(info["samples_lost"]),
+            closed_cleanly=bool(info["closed_cleanly"]),
+        )
     except SessionError as exc:
         return SessionSummary(**base, error=str(exc))
     except Exception as exc:  # a corrupt file must not hide the others

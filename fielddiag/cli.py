@@ -63,8 +63,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 0
+    from fielddiag.session_guard import guarded_opens
+
     try:
-        result = args.func(args)
+        with guarded_opens():  # sessions are probed in a time-limited worker first
+            result = args.func(args)
     except FieldDiagError as exc:
         print(f"fielddiag {args.command}: error: {exc}", file=sys.stderr)
         return 1

@@ -606,23 +606,35 @@ class SessionWriter:
 
 # ====================================================================== reading
 def _open_h5(path: Path) -> tuple[h5py.File, bool, str]:
-    """Open a session file; returns (file, opened_in_swmr_mode, why plain mode failed)."""
-    if not path.exists():
-        raise SessionError(f"{path} does not exist")
-    if path.is_dir():
-        raise SessionError(f"{path} is a folder, not a session file")
+    """Open a session file; returns (file, opened_in_swmr_mode, why plain mode failed).
+
+    The file is checked first (:func:`fielddiag.session_guard.precheck`: signature,
+    superblock checksum, end-of-file address against the real size), so HDF5 never sees
+    a truncated file. SWMR read mode, which skips HDF5's own end-of-file check, is used
+    only for a file whose superblock says a writer has it open.
+    """
+    from fielddiag.session_guard import open_swmr_read, precheck
+
+    check = precheck(path)
     try:
         return h5py.File(path, "r", libver="latest"), False, ""
     except OSError as first:
-        # A writer still has it open, or was killed: SWMR read mode opens it anyway and
-        # sees everything flushed.
-        try:
-            return h5py.File(path, "r", libver="latest", swmr=True), True, str(first)
-        except OSError:
-            raise SessionError(
-                f"{path} is not a readable session file ({first}); is it an HDF5 file "
-                "written by fielddiag?"
-            ) from None
+        if check.writer_open:
+            # A writer still has it open, or was killed: SWMR read mode opens it anyway
+            # and sees everything flushed.
+            try:
+                return open_swmr_read(path), True, str(first)
+            except OSError:
+                pass
+        raise SessionError(
+            f"{path} is not a readable session file ({first}); is it an HDF5 file "
+            "written by fielddiag?"
+        ) from None
+
+
+def _one_line(exc: BaseException) -> str:
+    """An exception's text on one line (HDF5 messages can span several)."""
+    return " ".join(str(exc).split()) or type(exc).__name__
 
 
 def _bisect_left(ds: h5py.Dataset, value: float, lo: int = 0, hi: int | None = None) -> int:
@@ -648,7 +660,11 @@ class SessionReader:
     """
 
     def __init__(self, path: str | os.PathLike) -> None:
+        from fielddiag import session_guard
+
         self.path = Path(path)
+        if session_guard.opens_guarded():  # the CLI: probed in a worker first (cached)
+            session_guard.verify_untrusted(self.path)
         self._file, self.swmr, why_swmr = _open_h5(self.path)
         try:
             self._load_header()
@@ -663,9 +679,10 @@ class SessionReader:
         except SessionError:
             self._file.close()
             raise
-        except (KeyError, ValueError, TypeError) as exc:
+        except (KeyError, ValueError, TypeError, OSError, RuntimeError) as exc:
             self._file.close()
-            raise SessionError(f"{self.path} is not a valid fielddiag session ({exc})") from None
+            raise SessionError(f"{self.path} is not a valid fielddiag session "
+                               f"({_one_line(exc)}); copy it again from the original") from None
 
     def _load_header(self) -> None:
         f = self._file

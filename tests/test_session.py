@@ -290,7 +290,8 @@ def test_a_truncated_copy_is_refused_not_read_as_zeros(tmp_path):
     write_session(path, META, [ChannelSpec("x"), ChannelSpec("y")], data, sample_rate_hz=500.0)
     whole = path.read_bytes()
     path.write_bytes(whole[: len(whole) // 2])  # an interrupted copy
-    with pytest.raises(SessionError, match=r"is truncated \(\d+ bytes.*copy it again"):
+    with pytest.raises(SessionError, match=r"not a complete fielddiag session "
+                       r"\(truncated at \d+ of \d+ bytes\): copy it again"):
         SessionReader(path)
 
 

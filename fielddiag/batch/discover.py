@@ -120,16 +120,22 @@ def find_sessions(inputs: Sequence[str | os.PathLike]) -> tuple[list[Path], list
 
 
 def read_headers(paths: Iterable[Path]) -> list[SessionHeader]:
-    """The pairing fields of each session's header (unreadable files get ``error``)."""
-    from fielddiag.session import SessionReader
+    """The pairing fields of each session's header (unreadable files get ``error``).
+
+    Files are read through :func:`fielddiag.session_guard.untrusted_info`, so a
+    truncated or damaged file is refused (within a time limit) and the rest go on.
+    """
+    from fielddiag.errors import FieldDiagError
+    from fielddiag.session_guard import untrusted_info
 
     out = []
     for p in paths:
         try:
-            with SessionReader(p) as s:
-                md = s.metadata
-                out.append(SessionHeader(p, str(md.vehicle), str(md.corner),
-                                         float(md.added_mass_kg), str(md.created)))
+            md = untrusted_info(p)["metadata"]
+            out.append(SessionHeader(p, str(md["vehicle"]), str(md["corner"]),
+                                     float(md["added_mass_kg"]), str(md["created"])))
+        except FieldDiagError as exc:
+            out.append(SessionHeader(p, error=f"cannot read the session header: {exc}"))
         except Exception as exc:  # a corrupt file fails alone, with its reason
             out.append(SessionHeader(p, error=f"cannot read the session header: {exc}"))
     return out

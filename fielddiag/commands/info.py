@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from fielddiag.session import SessionReader
+from fielddiag.session_guard import untrusted_info
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -61,8 +61,7 @@ def format_info(info: dict) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    with SessionReader(args.session) as s:
-        info = s.info()
+    info = untrusted_info(args.session)
     if args.json:
         print(json.dumps(info, indent=2))
     else:

@@ -16,6 +16,7 @@ from nicegui import background_tasks, run, ui
 
 from fielddiag.catalog import OutsideRootError
 from fielddiag.errors import FieldDiagError
+from fielddiag.session_guard import verify_untrusted
 from fielddiag.web.charts import timeseries_height_px, timeseries_options, zoom_window
 from fielddiag.web.layout import (
     file_link,
@@ -93,7 +94,9 @@ def render(state, path: str = "") -> None:
                   "events": [], "gaps": [], "fetch_s": 0.0}
 
     def _fetch(window):
-        src = state.plots.get(state.resolve(summary.path))
+        path = state.resolve(summary.path)
+        verify_untrusted(path)  # one stat when the list has checked it already
+        src = state.plots.get(path)
         r = src.reader
         lo, hi = (None, None) if window is None else window
         t_fetch = time.perf_counter()
