@@ -296,7 +296,7 @@ class IdentificationResult(_Serialisable):
         out += [
             f"Band {b.low_hz:.2f}-{b.high_hz:.2f} Hz ({b.source}; {b.note})",
             "Coherence in band: " + ", ".join(f"{k} {v:.2f}" for k, v in self.coherence.items()),
-            "Result (frequency route, std from a jackknife over time blocks):",
+            "Result, linear model (frequency route; std from a jackknife over time blocks):",
             line("sprung mass M2", self.sprung_mass_kg, "kg"),
             line("suspension stiffness K2", self.suspension_stiffness_n_per_m, "N/m"),
             line("suspension damping C2", self.suspension_damping_ns_per_m, "N s/m"),
