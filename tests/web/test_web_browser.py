@@ -5,6 +5,7 @@ Screenshots go to tests/screenshots/ (ignored by git) for a person to look at.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import time
 from collections.abc import Callable
@@ -126,16 +127,26 @@ def seconds(duration: str) -> float:
     return float(value)
 
 
-@pytest.fixture
-def page(browser, live_server):
-    """The browser, cleaned before and after a test (so that a page left open does not log
-    connection errors while its server stops)."""
+@contextlib.contextmanager
+def clean_page(browser):
+    """The browser on a blank page with its log emptied, before and after a test (so that
+    a page left open does not log connection errors while its server stops); failed waits
+    take their screenshot with it."""
     browser.get("about:blank")
     browser.get_log("browser")
     _current_driver[:] = [browser]
-    yield browser
-    browser.get("about:blank")
-    browser.get_log("browser")
+    try:
+        yield browser
+    finally:
+        browser.get("about:blank")
+        browser.get_log("browser")
+
+
+@pytest.fixture
+def page(browser, live_server):
+    """The browser, clean, with ``fielddiag serve`` running on the test's sessions."""
+    with clean_page(browser) as b:
+        yield b
 
 
 def test_sessions_to_session_to_identification_to_diagnosis(page, live_server,

@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 from test_web_browser import (
-    _current_driver,
     chart_series,
+    clean_page,
     click_text,
     js_errors,
     shot,
@@ -47,13 +47,9 @@ def _select_values(d) -> list[str]:
 
 @pytest.fixture
 def page(browser):
-    """The browser, cleaned before and after a test (servers are started by the test)."""
-    browser.get("about:blank")
-    browser.get_log("browser")
-    _current_driver[:] = [browser]
-    yield browser
-    browser.get("about:blank")
-    browser.get_log("browser")
+    """The browser, clean (each test starts its own server)."""
+    with clean_page(browser) as b:
+        yield b
 
 
 @pytest.fixture
