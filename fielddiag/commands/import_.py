@@ -7,6 +7,7 @@ from pathlib import Path
 
 from fielddiag.channels import SessionMetadata
 from fielddiag.io.formats import FORMATS, detect_format, get_format, import_file, options_from_args
+from fielddiag.validate import arg_number
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -54,7 +55,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="PVS: accelerometer axis that is vertical (default: auto, from gravity)")
     p.add_argument(
         "--added-mass",
-        type=float,
+        type=arg_number("--added-mass", "session_added_mass"),
         default=0.0,
         metavar="KG",
         help="mass added to the body for this drive",
@@ -68,6 +69,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from fielddiag.outputs import atomic_file
+
     src = Path(args.file)
     fmt = get_format(args.format).name if args.format else detect_format(src)
     meta = SessionMetadata(
@@ -77,13 +80,10 @@ def run(args: argparse.Namespace) -> int:
         added_mass_kg=args.added_mass,
         notes=args.notes,
     )
-    out = import_file(
-        src,
-        args.output,
-        format=fmt,
-        metadata=meta,
-        overwrite=args.overwrite,
-        **options_from_args(fmt, args),
-    )
-    print(f"wrote {out}")
+    # the session is written under a temporary name beside the output and moved into place
+    # only when complete: a failed import (bad row, full disk) leaves nothing behind
+    with atomic_file(args.output, overwrite=args.overwrite) as tmp:
+        import_file(src, tmp, format=fmt, metadata=meta, overwrite=True,
+                    **options_from_args(fmt, args))
+    print(f"wrote {args.output}")
     return 0

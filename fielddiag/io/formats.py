@@ -194,7 +194,10 @@ def _header_fields(head: bytes) -> list[str]:
     line = head.split(b"\n", 1)[0].decode("utf-8-sig", errors="replace").strip()
     counts = {d: line.count(d) for d in (",", ";", "\t")}
     delim = max(counts, key=counts.get)
-    return [h.strip() for h in next(csv.reader([line], delimiter=delim or ","), [])]
+    try:
+        return [h.strip() for h in next(csv.reader([line], delimiter=delim or ","), [])]
+    except csv.Error:  # not a CSV header (binary data): the importer says what is wrong
+        return []
 
 
 def manifest_path(csv_path: Path) -> Path:
