@@ -63,12 +63,14 @@ class Range:
     why: str = ""
 
     def describe(self) -> str:
-        """``"a finite number between 0 and 2000"`` (with "above"/"below" for open bounds)."""
-        lo = f"{'above' if self.lo_open else 'from'} {self.lo:g}"
-        hi = f"{'below' if self.hi_open else 'up to'} {self.hi:g}"
-        if not self.lo_open and not self.hi_open:
-            return f"a finite number between {self.lo:g} and {self.hi:g}"
-        return f"a finite number {lo} {hi}"
+        """``"a finite number between 0 and 2000"``, plus ", more than 0" (or ", less
+        than ...") where the bound itself is refused."""
+        text = f"a finite number between {self.lo:g} and {self.hi:g}"
+        if self.lo_open:
+            text += f", more than {self.lo:g}"
+        if self.hi_open:
+            text += f", less than {self.hi:g}"
+        return text
 
     def contains(self, value: float) -> bool:
         if not math.isfinite(value):
@@ -253,3 +255,26 @@ def arg_existing_file(what: str = "session file") -> Callable[[str], str]:
 
     parse.__name__ = "file"
     return parse
+
+
+def finite_session(path: str | os.PathLike, roles: tuple[str, ...] = ("wheel", "body")) -> None:
+    """Refuse a session whose channels of ``roles`` hold NaN or infinite samples.
+
+    The numerics cannot use such samples; the message names the file, the channel and how
+    many samples are bad, instead of the internal step that would trip over them. Roles
+    the session does not have are left to the command to report.
+    """
+    import numpy as np
+
+    from fielddiag.session import SessionReader
+
+    with SessionReader(path) as s:
+        for role in roles:
+            for ch in s.channels_for_role(role):
+                values = s.read(ch.name)
+                bad = int(values.size - np.count_nonzero(np.isfinite(values)))
+                if bad:
+                    raise FieldDiagError(
+                        f"{path}: channel {ch.name} ({role}) holds {bad} of {values.size} "
+                        "samples that are not finite numbers (NaN or infinite); re-import or "
+                        "re-record the drive")

@@ -9,11 +9,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 from fielddiag.errors import FieldDiagError
-from fielddiag.validate import arg_existing_file, arg_number
+from fielddiag.validate import arg_existing_file, arg_number, finite_session
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -70,6 +69,9 @@ def run(args: argparse.Namespace) -> int:
     if len(paths) == 1:
         with SessionReader(paths[0]) as s:
             is_rig = bool(s.channels_for_role("force"))
+    if not is_rig:
+        for p in paths:
+            finite_session(p)
     if is_rig:
         from fielddiag.diagnose.rig import diagnose_rig, rig_data_from_session
         from fielddiag.plots.diagnose import write_rig_plots as write_plots_into
@@ -83,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
         result = diagnose_sessions(
             paths,
             added_mass_kg=args.added_mass,
-            progress=lambda msg: print(f"  {msg}", file=sys.stderr),
+            progress=lambda msg: print(f"  {msg}", flush=True),  # stderr: errors only
         )
     out = result.to_dict()
     if args.plots:

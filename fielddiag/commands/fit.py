@@ -21,7 +21,7 @@ import sys
 from typing import TYPE_CHECKING
 
 from fielddiag.errors import FieldDiagError
-from fielddiag.validate import arg_int, arg_number, band_hz, existing_file
+from fielddiag.validate import arg_int, arg_number, band_hz, existing_file, finite_session
 
 if TYPE_CHECKING:
     from fielddiag.identify.terms import ForceModel
@@ -94,11 +94,14 @@ def run(args: argparse.Namespace) -> int:
     for path in [*args.sessions, *args.validate]:
         existing_file(path)
     if args.start is not None and args.end is not None and not args.end > args.start:
-        raise FieldDiagError(f"--end {args.end:g} must be after --start {args.start:g} (s)")
+        raise FieldDiagError(f"--end {args.end:g} is not after --start {args.start:g}: give "
+                             "an end time later than the start, in s")
     band = band_hz(args.band)
     if args.json and args.json != "-":
         check_target(args.json, overwrite=True, flag="--json")
     model = build_model(args.terms)
+    for path in [*args.sessions, *args.validate]:
+        finite_session(path)
 
     from fielddiag.identify.greybox import GreyBoxData, fit_greybox
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from fielddiag.validate import arg_existing_file, arg_number, band_hz
+from fielddiag.validate import arg_existing_file, arg_number, band_hz, finite_session
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -46,7 +46,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from fielddiag.identify import IdentifyConfig, identify_sessions
     from fielddiag.outputs import check_folder, check_target, write_plots, write_text
 
     band = band_hz(args.band)
@@ -54,6 +53,10 @@ def run(args: argparse.Namespace) -> int:
         check_target(args.json, overwrite=True, flag="--json")
     if args.plots:
         check_folder(args.plots)
+    for path in (args.before, args.after):
+        finite_session(path)
+    from fielddiag.identify import IdentifyConfig, identify_sessions
+
     result = identify_sessions(
         args.before, args.after, added_mass_kg=args.added_mass,
         band_hz=band, config=IdentifyConfig(

@@ -50,7 +50,6 @@ def format_ride(a) -> str:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from fielddiag.identify.ride import analyse_ride
     from fielddiag.outputs import check_folder, check_target, write_plots, write_text
     from fielddiag.session import SessionReader
 
@@ -58,6 +57,8 @@ def run(args: argparse.Namespace) -> int:
         check_target(args.json, overwrite=True, flag="--json")
     if args.plots:
         check_folder(args.plots)
+    from fielddiag.identify.ride import analyse_ride
+
     with SessionReader(args.session) as s:
         body = s.channel_for_role("body")
         t, a = s.read_with_time(body.name)

@@ -125,9 +125,10 @@ def drive_from_args(args: argparse.Namespace, added_mass_kg: float, seed: int | 
 
 def run(args: argparse.Namespace) -> int:
     from fielddiag.outputs import atomic_file, check_target
+
+    check_target(args.output, overwrite=args.overwrite)  # before the work
     from fielddiag.simio import drive_to_session
 
-    check_target(args.output, overwrite=args.overwrite)
     drive = drive_from_args(args, args.added_mass, args.seed)
     with atomic_file(args.output, overwrite=args.overwrite) as tmp:
         drive_to_session(drive, tmp, vehicle=args.vehicle, corner=args.corner, overwrite=True)

@@ -20,7 +20,7 @@ import sys
 import time
 
 from fielddiag.errors import FieldDiagError
-from fielddiag.validate import arg_existing_file, arg_number
+from fielddiag.validate import arg_existing_file, arg_number, finite_session
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -66,6 +66,7 @@ def run(args: argparse.Namespace) -> int:
 
     if args.json and args.json != "-":
         check_target(args.json, overwrite=True, flag="--json")
+    finite_session(args.session)
     model = build_model(args.terms)
     with SessionReader(args.session) as s:
         wch, bch = s.channel_for_role("wheel"), s.channel_for_role("body")
