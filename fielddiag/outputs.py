@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import errno
 import os
+import re
 import secrets
 import shutil
 import stat
@@ -33,10 +34,26 @@ _WHAT_TO_DO = {
 }
 
 
-def os_error(path: str | os.PathLike, exc: OSError) -> OutputError:
-    """A one-line :class:`OutputError` for an OSError met while writing ``path``."""
-    why = exc.strerror or str(exc)
-    todo = _WHAT_TO_DO.get(exc.errno or 0, "choose another path")
+_H5_ERRNO = re.compile(r"errno = (\d+)")
+
+
+def _errno_of(exc: BaseException) -> int | None:
+    """The errno of an OSError, or the one HDF5 puts in its messages (h5py raises those
+    as RuntimeError or OSError with the system error inside the text)."""
+    if isinstance(exc, OSError) and exc.errno:
+        return exc.errno
+    m = _H5_ERRNO.search(str(exc))
+    return int(m.group(1)) if m else None
+
+
+def os_error(path: str | os.PathLike, exc: BaseException) -> OutputError:
+    """A one-line :class:`OutputError` for a system error met while writing ``path``."""
+    code = _errno_of(exc)
+    if code is not None:
+        why = os.strerror(code)
+    else:
+        why = getattr(exc, "strerror", None) or " ".join(str(exc).split())
+    todo = _WHAT_TO_DO.get(code or 0, "choose another path")
     return OutputError(f"cannot write {path}: {why}; {todo}")
 
 
@@ -165,6 +182,11 @@ def atomic_file(
         os.replace(tmp, target)
     except OSError as exc:
         _remove(tmp)
+        raise os_error(path, exc) from None
+    except RuntimeError as exc:  # h5py: a system error reported inside the text
+        _remove(tmp)
+        if _errno_of(exc) is None:
+            raise
         raise os_error(path, exc) from None
     except BaseException:
         _remove(tmp)

@@ -56,6 +56,8 @@ class Case:
     args: tuple[str, ...]
     expect: tuple[str, ...] = ()
     setup: Callable[[Path, dict], None] | None = None
+    #: fill the tiny tmpfs before the run (results smaller than its few kB must fail too)
+    fill: bool = False
 
     @property
     def needs_full(self) -> bool:
@@ -66,9 +68,10 @@ class Case:
         return self.needs_full or any("{RO}" in a for a in self.args)
 
 
-def C(id_: str, *args: str, expect: tuple[str, ...] | str = (), setup=None) -> Case:
+def C(id_: str, *args: str, expect: tuple[str, ...] | str = (), setup=None,
+      fill: bool = False) -> Case:
     return Case(id_, tuple(args), (expect,) if isinstance(expect, str) else tuple(expect),
-                setup)
+                setup, fill)
 
 
 # ------------------------------------------------------------------ set-ups of output folders
@@ -181,7 +184,7 @@ CASES += [
     C("demo-duration-nan", "demo", "--out", "{OUT}/demo", "--duration", "nan",
       expect="--duration nan"),
     C("demo-duration-short", "demo", "--out", "{OUT}/demo", "--duration", "10",
-      "--no-serve", expect="--duration"),
+      "--no-serve", expect=("--duration 10", "32 s")),
     C("demo-port-zero", "demo", "--out", "{OUT}/demo", "--port", "0", expect="--port 0"),
     C("serve-port-70000", "serve", "--port", "70000", expect="--port 70000"),
     C("serve-upload-nan", "serve", "--max-upload-mb", "nan", expect=("--max-upload-mb nan",
@@ -307,11 +310,11 @@ CASES += [
     C("track-all-nan", "track", "{WS}/nan.h5", expect="nan.h5"),
     # ------------------------------------------------------- a full disk (real tmpfs)
     C("identify-json-full-disk", "identify", *BA, "--json", "{FULL}/r.json",
-      expect=("r.json", "No space left")),
+      expect=("r.json", "No space left"), fill=True),
     C("identify-plots-full-disk", "identify", *BA, "--plots", "{FULL}/plots",
       expect=("plots", "No space left")),
     C("diagnose-json-full-disk", "diagnose", *BA, "--json", "{FULL}/r.json",
-      expect=("r.json", "No space left")),
+      expect=("r.json", "No space left"), fill=True),
     C("ride-plots-full-disk", "ride", "{B}", "--plots", "{FULL}/plots",
       expect="No space left"),
     C("export-csv-full-disk", "export", "{B}", "-o", "{FULL}/x.csv", expect="No space left"),
@@ -321,7 +324,18 @@ CASES += [
     C("simulate-full-disk", "simulate", "-o", "{FULL}/s.h5", "--duration", "5",
       expect="No space left"),
     C("fit-json-full-disk", "fit", "{B}", "--max-iterations", "2", "--json", "{FULL}/r.json",
-      expect="No space left"),
+      expect="No space left", fill=True),
+    # ----------------------------------------------------------- batch manifest files
+    C("manifest-mass-inf", "reprocess", "{B}", "{A}", "--manifest", "{WS}/manifest_inf.csv",
+      "--dry-run", "--catalog", "{OUT}/c.sqlite", expect=("line 2", "added_mass_kg inf", "kg")),
+    C("manifest-mass-1e12", "reprocess", "{B}", "{A}", "--manifest",
+      "{WS}/manifest_1e12.csv", "--dry-run", "--catalog", "{OUT}/c.sqlite",
+      expect=("line 2", "added_mass_kg 1e12")),
+    C("manifest-mass-negative", "reprocess", "{B}", "{A}", "--manifest",
+      "{WS}/manifest_negative.csv", "--dry-run", "--catalog", "{OUT}/c.sqlite",
+      expect=("line 2", "added_mass_kg -60")),
+    C("manifest-latin1", "reprocess", "{B}", "{A}", "--manifest", "{WS}/manifest_latin1.csv",
+      "--dry-run", "--catalog", "{OUT}/c.sqlite", expect=("manifest_latin1.csv", "UTF-8")),
 ]
 
 #: Pair compatibility: the lead's branch (fielddiag/pairs.py) refuses these; marked so that
@@ -375,6 +389,16 @@ def _mount(target: Path, options: str) -> bool:
                           capture_output=True).returncode == 0
 
 
+def _fill(path: Path) -> None:
+    """Write zeros to ``path`` until the disk is full."""
+    with open(path, "wb", buffering=0) as fh:
+        try:
+            while True:
+                fh.write(b"\0" * 1024)
+        except OSError:
+            pass
+
+
 def _umount(target: Path) -> None:
     subprocess.run(["umount", "-l", str(target)], capture_output=True)
 
@@ -407,6 +431,11 @@ def workspace(tmp_path_factory):
     _write_csv(ws / "text_cell.csv", good[:2] + ["0.01,0.1,abc"] + good[3:])
     _write_csv(ws / "backwards.csv", good[:10] + [good[3]] + good[11:])
     _write_csv(ws / "short_row.csv", good[:4] + ["0.02,0.1"] + good[5:])
+    for name, mass in (("inf", "inf"), ("1e12", "1e12"), ("negative", "-60")):
+        (ws / f"manifest_{name}.csv").write_text(
+            f"before,after,added_mass_kg\nbefore.h5,after.h5,{mass}\n")
+    (ws / "manifest_latin1.csv").write_bytes(
+        "before,after,added_mass_kg\nbefore_é.h5,after.h5,60\n".encode("latin-1"))
     return {"WS": ws, "B": ws / "before.h5", "A": ws / "after.h5", "CSV": ws / "good.csv"}
 
 
@@ -429,6 +458,8 @@ def outcomes(workspace, tmp_path_factory):
             if not _mount(full, f"size={FULL_DISK_SIZE}"):
                 return {"skip": "could not mount a tiny tmpfs"}
             mounted.append(full)
+            if case.fill:
+                _fill(full / "filler")
         if case.setup:
             case.setup(out, workspace)
         names = {k: str(v) for k, v in workspace.items()}
@@ -496,7 +527,7 @@ def test_suite_size_and_time(outcomes) -> None:
     """At least 120 bad inputs and faults; the wall time is printed (pytest -s)."""
     assert len(CASES) + len(PAIR_CASES) >= 120
     slow = sorted(((v["seconds"], k) for k, v in outcomes.items()
-                   if isinstance(v, dict) and "seconds" in v), reverse=True)[:5]
+                   if isinstance(v, dict) and "seconds" in v), reverse=True)[:15]
     print(f"\n{len(CASES) + len(PAIR_CASES)} cases in {outcomes['_wall_s']:.1f} s wall; "
           "slowest: " + ", ".join(f"{k} {s:.1f} s" for s, k in slow))
 

@@ -101,7 +101,7 @@ def test_manifest_pairs_as_it_says_and_rejects_bad_rows(tmp_path):
     assert a.exists() and b.exists()
     for text, needle in [("before;after\n", "columns before,after"),
                          ("before,after,added_mass_kg\none.h5,,5\n", "line 2"),
-                         ("before,after,added_mass_kg\none.h5,two.h5,-5\n", "not a positive")]:
+                         ("before,after,added_mass_kg\none.h5,two.h5,-5\n", "kg -5: give")]:
         m.write_text(text)
         with pytest.raises(FieldDiagError, match=needle):
             read_manifest(m)

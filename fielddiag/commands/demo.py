@@ -127,15 +127,15 @@ def _store_beside_sessions(result: dict, kind: str, sessions: list[Path]) -> Non
 
 def run(args: argparse.Namespace) -> int:
     from fielddiag.errors import FieldDiagError
-    from fielddiag.identify import identify_sessions
-    from fielddiag.plots import write_identify_plots
 
     if args.duration < MIN_DURATION_S:
         raise FieldDiagError(
-            f"--duration must be at least {MIN_DURATION_S:g} s: the identification needs 30 s "
-            "of each drive, and a recording holds a little less than it ran for")
-    if not args.no_serve and not 0 < args.port < 65536:
-        raise FieldDiagError(f"--port must be between 1 and 65535, not {args.port}")
+            f"--duration {args.duration:g}: give at least {MIN_DURATION_S:g} s; the "
+            "identification needs 30 s of each drive, and a recording holds a little less "
+            "than it ran for")
+    from fielddiag.identify import identify_sessions
+    from fielddiag.plots import write_identify_plots
+
     run_dir = _new_run_dir(Path(args.out))
     print(f"fielddiag demo: writing into {run_dir}")
     print(

@@ -73,13 +73,13 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def build_model(terms: str) -> ForceModel:
     """Linear spring + damper plus the comma-separated effect terms."""
-    from fielddiag.identify.terms import make_term
-
     names = [t.strip() for t in terms.split(",") if t.strip()]
     for name in names:
         if name not in (*EFFECT_TERMS, "linear_spring", "linear_damper"):
             raise FieldDiagError(f"--terms {name}: unknown term; choose from "
                                  f"{', '.join(EFFECT_TERMS)}")
+    from fielddiag.identify.terms import make_term
+
     model = make_term("linear_spring") + make_term("linear_damper")
     for name in names:
         if name in ("linear_spring", "linear_damper"):

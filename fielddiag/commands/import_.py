@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from fielddiag.channels import SessionMetadata
+from fielddiag.errors import ImportFormatError
 from fielddiag.io.formats import FORMATS, detect_format, get_format, import_file, options_from_args
 from fielddiag.validate import arg_number
 
@@ -72,7 +73,15 @@ def run(args: argparse.Namespace) -> int:
     from fielddiag.outputs import atomic_file
 
     src = Path(args.file)
-    fmt = get_format(args.format).name if args.format else detect_format(src)
+    if not src.exists():
+        raise ImportFormatError(f"{src} does not exist; give the file (or PVS folder) to import")
+    try:
+        fmt = get_format(args.format).name if args.format else detect_format(src)
+    except ImportFormatError as exc:
+        if not args.format:
+            raise
+        raise ImportFormatError(f"{exc}; give one of them with --format, or leave --format "
+                                "out to detect the format from the file") from None
     meta = SessionMetadata(
         vehicle=args.vehicle,
         corner=args.corner,

@@ -100,10 +100,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def drive_from_args(args: argparse.Namespace, added_mass_kg: float, seed: int | None):
     """Run the simulator as the drive options say."""
+    car = parse_key_values(args.car, "--car")
     from fielddiag import sim
 
     fields = {f.name for f in dataclasses.fields(sim.QuarterCarParams)}
-    car = parse_key_values(args.car, "--car")
     unknown = set(car) - fields
     if unknown:
         raise FieldDiagError(

@@ -53,6 +53,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from fielddiag.outputs import check_target, write_text
+
+    if args.json and args.json != "-":
+        check_target(args.json, overwrite=True, flag="--json")
+    finite_session(args.session)
     from fielddiag.commands.fit import build_model
     from fielddiag.identify.greybox import accel_unit_factor
     from fielddiag.identify.online import (
@@ -61,12 +66,8 @@ def run(args: argparse.Namespace) -> int:
         format_status,
         replay,
     )
-    from fielddiag.outputs import check_target, write_text
     from fielddiag.session import SessionReader
 
-    if args.json and args.json != "-":
-        check_target(args.json, overwrite=True, flag="--json")
-    finite_session(args.session)
     model = build_model(args.terms)
     with SessionReader(args.session) as s:
         wch, bch = s.channel_for_role("wheel"), s.channel_for_role("body")

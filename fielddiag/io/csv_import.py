@@ -155,11 +155,12 @@ def _read_table(
         if len(header_line) > _MAX_HEADER_CHARS:
             raise ImportFormatError(
                 f"{name}: the first line is longer than {_MAX_HEADER_CHARS // 1000} kB with no "
-                "line break; a CSV file needs a header row, then one row per sample"
+                "line break; give a CSV file with a header row, then one row per sample"
             )
         if not header_line.strip():
             raise ImportFormatError(
-                f"{name}: the file is empty; it needs a header row and at least two data rows"
+                f"{name}: the file is empty; give a CSV file with a header row and at least "
+                "two data rows"
             )
         delim = delimiter or _sniff_delimiter(header_line)
         try:
@@ -207,7 +208,8 @@ def _read_table(
     n = len(lines)
     if n < 2:
         raise ImportFormatError(
-            f"{name}: {n} data row{'s' if n != 1 else ''}; a session needs at least two samples"
+            f"{name}: {n} data row{'s' if n != 1 else ''}; a session needs at least two "
+            "samples: give a file with a header row and two or more data rows"
         )
     data = {c: np.asarray(v, dtype="f8") for c, v in zip(columns, values, strict=True)}
     return data, np.asarray(lines, dtype="i8")
