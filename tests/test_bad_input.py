@@ -44,7 +44,7 @@ CASE_TIMEOUT_S = 120.0
 #: The line says what to do: a verb of instruction.
 SAYS_WHAT_TO_DO = re.compile(
     r"\b(give|choose|pass|create|free|use|write|name|record|re-import|re-record|fix|remove|"
-    r"export|check|cut|fill|sort|say|map|delete|install|see)\b", re.I)
+    r"export|check|cut|fill|sort|say|map|delete|install|see|save)\b", re.I)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -99,9 +99,9 @@ def run(args: argparse.Namespace) -> int:
     band = band_hz(args.band)
     if args.json and args.json != "-":
         check_target(args.json, overwrite=True, flag="--json")
-    model = build_model(args.terms)
     for path in [*args.sessions, *args.validate]:
         finite_session(path)
+    model = build_model(args.terms)
 
     from fielddiag.identify.greybox import GreyBoxData, fit_greybox
 

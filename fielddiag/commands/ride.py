@@ -57,8 +57,6 @@ def run(args: argparse.Namespace) -> int:
         check_target(args.json, overwrite=True, flag="--json")
     if args.plots:
         check_folder(args.plots)
-    from fielddiag.identify.ride import analyse_ride
-
     with SessionReader(args.session) as s:
         body = s.channel_for_role("body")
         t, a = s.read_with_time(body.name)
@@ -70,6 +68,8 @@ def run(args: argparse.Namespace) -> int:
         raise FieldDiagError(
             f"{args.session}: the body channel {body.name} holds {bad} of {a.size} samples that "
             "are not finite numbers (NaN or infinite); re-import or re-record the drive")
+    from fielddiag.identify.ride import analyse_ride
+
     analysis = analyse_ride(a, t, speed_time_s=speed_t, speed_mps=speed_v)
     print(format_ride(analysis))
     if args.plots:

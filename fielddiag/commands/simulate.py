@@ -127,9 +127,9 @@ def run(args: argparse.Namespace) -> int:
     from fielddiag.outputs import atomic_file, check_target
 
     check_target(args.output, overwrite=args.overwrite)  # before the work
+    drive = drive_from_args(args, args.added_mass, args.seed)
     from fielddiag.simio import drive_to_session
 
-    drive = drive_from_args(args, args.added_mass, args.seed)
     with atomic_file(args.output, overwrite=args.overwrite) as tmp:
         drive_to_session(drive, tmp, vehicle=args.vehicle, corner=args.corner, overwrite=True)
     path = args.output
