@@ -300,6 +300,12 @@ CASES += [
       expect="xls"),
     C("import-bad-time-unit", "import", "{CSV}", "-o", "{OUT}/s.h5", *CSV_ROLES,
       "--time-unit", "fortnights", expect="fortnights"),
+    C("import-pvs-binary", "import", "{WS}/pvs_binary", "--format", "pvs", "-o",
+      "{OUT}/s.h5", expect=("dataset_gps_mpu_left.csv", "not a CSV text file")),
+    C("import-mdf-garbage", "import", "{WS}/garbage.mf4", "-o", "{OUT}/s.h5",
+      expect=("garbage.mf4", "not an MDF file")),
+    C("import-canlog-no-dbc", "import", "{WS}/drive.log", "-o", "{OUT}/s.h5",
+      expect="DBC"),
     # ---------------------------------------------------------------- session contents
     C("ride-all-nan", "ride", "{WS}/nan.h5", expect=("nan.h5", "not finite")),
     C("identify-all-nan", "identify", "{WS}/nan.h5", "{A}", "--added-mass", "60",
@@ -431,6 +437,12 @@ def workspace(tmp_path_factory):
     _write_csv(ws / "text_cell.csv", good[:2] + ["0.01,0.1,abc"] + good[3:])
     _write_csv(ws / "backwards.csv", good[:10] + [good[3]] + good[11:])
     _write_csv(ws / "short_row.csv", good[:4] + ["0.02,0.1"] + good[5:])
+    (ws / "pvs_binary").mkdir()
+    (ws / "pvs_binary" / "dataset_gps_mpu_left.csv").write_bytes(
+        b"\0" + np.random.default_rng(1).bytes(5000))
+    (ws / "garbage.mf4").write_bytes(np.random.default_rng(2).bytes(5000))
+    (ws / "drive.log").write_text("".join(f"({1e9 + i / 100:.6f}) can0 0B4#0000000000001234\n"
+                                          for i in range(50)))
     for name, mass in (("inf", "inf"), ("1e12", "1e12"), ("negative", "-60")):
         (ws / f"manifest_{name}.csv").write_text(
             f"before,after,added_mass_kg\nbefore.h5,after.h5,{mass}\n")

@@ -293,7 +293,9 @@ def _open_mdf(path: Path):
         sys.unraisablehook = hook
     if error is not None:
         raise ImportFormatError(
-            f"{path.name}: not a readable MDF file ({error}); is it corrupt or cut short?"
+            f"{path.name}: not a readable MDF file ({' '.join(str(error).split())}); is it "
+            "corrupt or cut short? "
+            "Export it again from the logger"
         )
     if int(str(mdf.version).split(".")[0]) < 4:
         mdf.close()
