@@ -6,8 +6,10 @@ folder (no temporary, ``.partial`` or 0-byte file, no empty plot folder), and th
 must be unchanged (hashed before and after).
 
 Real faults, not mocks: a read-only file system is a read-only tmpfs, a full disk is a tmpfs
-of a few kB (one per case, so that cases cannot fill each other's disk), and unwritable
-paths are under /proc. Mounting needs root; without it those cases are skipped and say so.
+of a few kB (one per case, so that cases cannot fill each other's disk), unwritable paths
+are under /proc, and the device node is a /dev/full made with mknod in the case's folder
+(never the machine's own: a faulty ``--overwrite`` would replace it). Mounting and mknod
+need root; without it those cases are skipped and say so.
 
 The cases run concurrently (three at a time) once per module, so that 140 subprocesses take
 about a minute; each test then checks one case's recorded outcome.
@@ -21,6 +23,7 @@ import json
 import os
 import re
 import shutil
+import stat
 import subprocess
 import sys
 import time
@@ -88,7 +91,7 @@ def _existing_output_session(out: Path, ws: dict) -> None:
 
 
 def _link_to_device(out: Path, ws: dict) -> None:
-    (out / "link.csv").symlink_to("/dev/full")
+    (out / "link.csv").symlink_to("full_dev")  # made by the run, as for {DEV}
 
 
 def _folder_named_csv(out: Path, ws: dict) -> None:
@@ -220,8 +223,8 @@ CASES += [
       expect=("x.json", "read-only")),
     C("identify-json-no-folder", "identify", *BA, "--json", "{OUT}/none/x.json",
       expect=("none", "does not exist")),
-    C("identify-json-device", "identify", *BA, "--json", "/dev/full",
-      expect=("/dev/full", "device")),
+    C("identify-json-device", "identify", *BA, "--json", "{DEV}",
+      expect=("full_dev", "device")),
     C("identify-json-folder", "identify", *BA, "--json", "{OUT}", expect="is a folder"),
     C("identify-plots-readonly", "identify", *BA, "--plots", "{RO}/plots",
       expect="read-only"),
@@ -230,7 +233,7 @@ CASES += [
     C("diagnose-json-proc", "diagnose", *BA, "--json", "/proc/x.json", expect="/proc/x.json"),
     C("diagnose-json-readonly", "diagnose", *BA, "--json", "{RO}/x.json",
       expect="read-only"),
-    C("diagnose-json-device", "diagnose", *BA, "--json", "/dev/full", expect="device"),
+    C("diagnose-json-device", "diagnose", *BA, "--json", "{DEV}", expect="device"),
     C("diagnose-plots-readonly", "diagnose", *BA, "--plots", "{RO}/p", expect="read-only"),
     C("fit-json-proc", "fit", *BA, "--json", "/proc/x.json", expect="/proc/x.json"),
     C("fit-json-readonly", "fit", *BA, "--json", "{RO}/x.json", expect="read-only"),
@@ -246,8 +249,8 @@ CASES += [
       "--overwrite", expect=("old.h5", "never replaces a session"), setup=_existing_session),
     C("export-over-itself", "export", "{B}", "-o", "{B}", "--format", "csv", "--overwrite",
       expect="never replaces a session"),
-    C("export-over-device", "export", "{B}", "-o", "/dev/full", "--format", "csv",
-      "--overwrite", expect=("/dev/full", "device")),
+    C("export-over-device", "export", "{B}", "-o", "{DEV}", "--format", "csv",
+      "--overwrite", expect=("full_dev", "device")),
     C("export-over-link-to-device", "export", "{B}", "-o", "{OUT}/link.csv", "--overwrite",
       expect="device", setup=_link_to_device),
     C("export-over-folder", "export", "{B}", "-o", "{OUT}/dir.csv", "--overwrite",
@@ -259,15 +262,15 @@ CASES += [
     C("import-readonly", "import", "{CSV}", "-o", "{RO}/s.h5", *CSV_ROLES,
       expect="read-only"),
     C("import-proc", "import", "{CSV}", "-o", "/proc/s.h5", *CSV_ROLES, expect="/proc/s.h5"),
-    C("import-over-device", "import", "{CSV}", "-o", "/dev/full", "--overwrite", *CSV_ROLES,
+    C("import-over-device", "import", "{CSV}", "-o", "{DEV}", "--overwrite", *CSV_ROLES,
       expect="device"),
     C("import-existing-no-overwrite", "import", "{CSV}", "-o", "{OUT}/s.h5", *CSV_ROLES,
       expect=("s.h5", "--overwrite"), setup=_existing_output_session),
     C("simulate-readonly", "simulate", "-o", "{RO}/s.h5", "--duration", "5",
       expect="read-only"),
-    C("simulate-over-device", "simulate", "-o", "/dev/full", "--overwrite", "--duration", "5",
+    C("simulate-over-device", "simulate", "-o", "{DEV}", "--overwrite", "--duration", "5",
       expect="device"),
-    C("record-over-device", "record", "--daq", "serial:///dev/null", "-o", "/dev/full",
+    C("record-over-device", "record", "--daq", "serial:///dev/null", "-o", "{DEV}",
       "--overwrite", expect="device"),
     C("record-readonly", "record", "--daq", "serial:///dev/null", "-o", "{RO}/r.h5",
       expect="read-only"),
@@ -375,8 +378,11 @@ def snapshot(folder: Path) -> dict[str, str]:
             out[rel] = "link:" + os.readlink(p)
         elif p.is_dir():
             out[rel] = "dir"
-        else:
+        elif p.is_file():
             out[rel] = _sha(p)
+        else:  # a device node: never read it
+            st = p.stat()
+            out[rel] = f"special:{st.st_mode:o}:{st.st_rdev}"
     return out
 
 
@@ -472,10 +478,17 @@ def outcomes(workspace, tmp_path_factory):
             mounted.append(full)
             if case.fill:
                 _fill(full / "filler")
+        if any("{DEV}" in a for a in case.args) or case.setup is _link_to_device:
+            # a device node of our own like /dev/full (char 1, 7): a run of faulty code
+            # must not replace the machine's /dev/full with a regular file
+            try:
+                os.mknod(out / "full_dev", 0o666 | stat.S_IFCHR, os.makedev(1, 7))
+            except OSError:
+                return {"skip": "creating a device node needs root"}
         if case.setup:
             case.setup(out, workspace)
         names = {k: str(v) for k, v in workspace.items()}
-        names.update(OUT=str(out), RO=str(ro), FULL=str(full))
+        names.update(OUT=str(out), RO=str(ro), FULL=str(full), DEV=str(out / "full_dev"))
         argv = [a.format(**names) for a in case.args]
         before = {"out": snapshot(out), "full": snapshot(full), "ro": snapshot(ro),
                   "inputs": snapshot(inputs)}
