@@ -73,7 +73,8 @@ def import_panel(state, on_imported: Callable[[], Awaitable[None] | None]) -> No
                     vehicle = ui.input("vehicle").classes("w-40").mark("csv-vehicle")
                     corner = ui.input("corner").classes("w-32")
                     mass = ui.number("added mass [kg]", value=0, min=0,
-                                     max=RANGES["session_added_mass"].hi).classes("w-32")
+                                     max=RANGES["session_added_mass"].hi).classes(
+                                         "w-32").mark("csv-added-mass")
                 import_button = ui.button("Import", icon="input").mark("csv-import")
             form.set_visibility(False)
 
