@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import pkgutil
+import re
 import sys
 from collections.abc import Sequence
 
@@ -37,8 +38,30 @@ COMMAND_ORDER = (
 )
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+class OneLineParser(argparse.ArgumentParser):
+    """An argument parser whose usage errors are one line and exit status 1, like every
+    other error a user can fix (argparse's default prints the usage and exits 2)."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        # "argument --added-mass: --added-mass nan: give ..." -> the validator's own line
+        m = re.match(r"argument ([^:]+): (.*)$", message, re.S)
+        if m and any(m.group(2).startswith(name) for name in m.group(1).split("/")):
+            message = m.group(2)
+        message = " ".join(message.split())
+        self.exit(1, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def _command_name(module: str) -> str:
+    """The command a module registers: ``import_`` -> ``import``, ``virtual_daq`` ->
+    ``virtual-daq``."""
+    return module.rstrip("_").replace("_", "-")
+
+
+def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
+    """The parser of every command, or, when ``argv`` names a command, of that one only:
+    a command's module imports only what it needs, so ``fielddiag info`` does not pay for
+    importing the numerics of ``fit``."""
+    parser = OneLineParser(
         prog="fielddiag",
         description=(
             "Diagnose vehicle suspensions from field recordings: record test drives, identify "
@@ -51,15 +74,21 @@ def build_parser() -> argparse.ArgumentParser:
 
     names = [m.name for m in pkgutil.iter_modules(pkg.__path__) if not m.name.startswith("_")]
     ordered = [n for n in COMMAND_ORDER if n in names] + sorted(set(names) - set(COMMAND_ORDER))
-    for name in ordered:
+    wanted = next((a for a in (argv or []) if not a.startswith("-")), None)
+    chosen = [n for n in ordered if _command_name(n) == wanted]
+    for name in chosen or ordered:
         module = importlib.import_module(f"fielddiag.commands.{name}")
         module.register(sub)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # --help, --version (0) or a usage error (1, one line)
+        return exc.code if isinstance(exc.code, int) else 1
     if not getattr(args, "func", None):
         parser.print_help()
         return 0

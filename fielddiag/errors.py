@@ -30,3 +30,12 @@ class InsufficientDataError(FieldDiagError):
 
 class DeviceError(FieldDiagError):
     """A device could not be opened or spoke a protocol we do not understand."""
+
+
+class InvalidValueError(FieldDiagError):
+    """A number or option the user gave is not finite or outside its physical range."""
+
+
+class OutputError(SessionError):
+    """An output cannot be written where asked (no such folder, read-only, full disk, or the
+    target is not a regular file)."""

@@ -251,7 +251,10 @@ class SessionWriter:
             self._file.swmr_mode = True
             self._file.flush()
         except Exception:
-            self._file.close()
+            try:
+                self._file.close()
+            except Exception:  # noqa: BLE001 - h5py cannot close cleanly after a full disk
+                pass
             self._file_path.unlink(missing_ok=True)
             raise
         self._fsync_fd = os.open(self._file_path, os.O_RDONLY)

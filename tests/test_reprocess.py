@@ -101,7 +101,7 @@ def test_manifest_pairs_as_it_says_and_rejects_bad_rows(tmp_path):
     assert a.exists() and b.exists()
     for text, needle in [("before;after\n", "columns before,after"),
                          ("before,after,added_mass_kg\none.h5,,5\n", "line 2"),
-                         ("before,after,added_mass_kg\none.h5,two.h5,-5\n", "not a positive")]:
+                         ("before,after,added_mass_kg\none.h5,two.h5,-5\n", "kg -5: give")]:
         m.write_text(text)
         with pytest.raises(FieldDiagError, match=needle):
             read_manifest(m)
@@ -119,7 +119,7 @@ def test_bad_input_is_one_clear_line(tmp_path, capsys):
     assert main(["reprocess", str(tmp_path / "empty")]) == 1
     assert "no session files" in capsys.readouterr().err
     assert main(["reprocess", str(tmp_path), "--workers", "0"]) == 1
-    assert "at least 1" in capsys.readouterr().err
+    assert "--workers 0: give worker processes, a whole number from 1" in capsys.readouterr().err
     _tiny_session(tmp_path / "s.h5", "v", 0)
     assert main(["reprocess", str(tmp_path), "--steps", "identify,fly"]) == 1
     assert "unknown step 'fly'" in capsys.readouterr().err

@@ -28,6 +28,7 @@ from pathlib import Path
 
 from fielddiag.errors import FieldDiagError
 from fielddiag.pairs import MAX_APART_H, DriveHeader, find_partner
+from fielddiag.validate import number
 
 SESSION_SUFFIXES = (".h5", ".hdf5")
 MANIFEST_NAME = "fielddiag-manifest.csv"
@@ -172,17 +173,15 @@ def read_manifest(path: str | os.PathLike) -> list[tuple[Path, Path, float | Non
                 mass: float | None = None
                 raw = (row.get(cols.get("added_mass_kg", ""), "") or "").strip()
                 if raw:
-                    try:
-                        mass = float(raw)
-                    except ValueError:
-                        mass = float("nan")
-                    if not mass > 0:
-                        raise FieldDiagError(f"manifest {path} line {line_no}: added_mass_kg "
-                                             f"{raw!r} is not a positive number of kg")
+                    mass = number(raw, "added_mass_kg", "added_mass",
+                                  source=f"manifest {path} line {line_no}")
                 rows.append(((folder / b).resolve(), (folder / a).resolve(), mass))
             return rows
     except OSError as exc:
         raise FieldDiagError(f"cannot read manifest {path}: {exc.strerror or exc}") from exc
+    except UnicodeDecodeError:
+        raise FieldDiagError(f"manifest {path} is not UTF-8 text; save it as UTF-8 CSV with "
+                             "the columns before,after[,added_mass_kg]") from None
     except csv.Error as exc:
         raise FieldDiagError(f"manifest {path} is not a readable CSV: {exc}") from exc
 

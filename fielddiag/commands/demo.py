@@ -21,6 +21,8 @@ import threading
 import time
 from pathlib import Path
 
+from fielddiag.validate import arg_int, arg_number
+
 DEFAULT_ADDED_MASS_KG = 60.0
 #: Shortest drive the demo records: the identification needs 30 s of data, and a drive
 #: recorded for 30 s holds slightly less (the first frames arrive after the start).
@@ -35,15 +37,19 @@ def register(sub: argparse._SubParsersAction) -> None:
         "demo", help="record, identify and diagnose a simulated car, no hardware needed"
     )
     p.add_argument("--out", default="fielddiag-demo", help="folder for the demo's runs")
-    p.add_argument("--duration", type=float, default=120.0, metavar="S",
+    p.add_argument("--duration", type=arg_number("--duration", "sim_duration"),
+                   default=120.0, metavar="S",
                    help=f"length of each recorded drive (real time; default 120, at least "
                         f"{MIN_DURATION_S:g})")
-    p.add_argument("--added-mass", type=float, default=DEFAULT_ADDED_MASS_KG, metavar="KG",
+    p.add_argument("--added-mass", type=arg_number("--added-mass", "added_mass"),
+                   default=DEFAULT_ADDED_MASS_KG, metavar="KG",
                    help=f"mass added on the body for the second drive (default "
                         f"{DEFAULT_ADDED_MASS_KG:g} kg)")
-    p.add_argument("--seed", type=int, default=1, help="random seed of the demo car's roads")
+    p.add_argument("--seed", type=arg_int("--seed", 0, 2**32 - 1, "a random seed"),
+                   default=1, help="random seed of the demo car's roads")
     p.add_argument("--no-serve", action="store_true", help="do not start the dashboard at the end")
-    p.add_argument("--port", type=int, default=8080, help="dashboard port (default 8080)")
+    p.add_argument("--port", type=arg_int("--port", 1, 65535, "a TCP port"),
+                   default=8080, help="dashboard port (default 8080)")
     p.set_defaults(func=run)
 
 
@@ -123,15 +129,15 @@ def _store_beside_sessions(result: dict, kind: str, sessions: list[Path]) -> Non
 
 def run(args: argparse.Namespace) -> int:
     from fielddiag.errors import FieldDiagError
-    from fielddiag.identify import identify_sessions
-    from fielddiag.plots import write_identify_plots
 
     if args.duration < MIN_DURATION_S:
         raise FieldDiagError(
-            f"--duration must be at least {MIN_DURATION_S:g} s: the identification needs 30 s "
-            "of each drive, and a recording holds a little less than it ran for")
-    if not args.no_serve and not 0 < args.port < 65536:
-        raise FieldDiagError(f"--port must be between 1 and 65535, not {args.port}")
+            f"--duration {args.duration:g}: give at least {MIN_DURATION_S:g} s; the "
+            "identification needs 30 s of each drive, and a recording holds a little less "
+            "than it ran for")
+    from fielddiag.identify import identify_sessions
+    from fielddiag.plots import write_identify_plots
+
     run_dir = _new_run_dir(Path(args.out))
     print(f"fielddiag demo: writing into {run_dir}")
     print(

@@ -9,10 +9,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 from fielddiag.errors import FieldDiagError
+from fielddiag.validate import arg_existing_file, arg_number, finite_session
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -31,12 +31,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "sessions",
         nargs="+",
+        type=arg_existing_file(),
         metavar="SESSION.h5",
         help="BEFORE.h5 AFTER.h5, or one session (drive or rig test)",
     )
     p.add_argument(
         "--added-mass",
-        type=float,
+        type=arg_number("--added-mass", "added_mass"),
         metavar="KG",
         default=None,
         help="mass added on the body for the second drive (default: from the "
@@ -54,41 +55,44 @@ def _print_summary(out: dict) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from fielddiag.outputs import check_folder, check_target, write_plots, write_text
     from fielddiag.session import SessionReader
 
     paths = [Path(p) for p in args.sessions]
     if len(paths) > 2:
         raise FieldDiagError("give one session (a drive or a rig test) or two (before, after)")
-    for p in paths:
-        if not p.is_file():
-            raise FieldDiagError(f"{p} does not exist")
-    if args.json and not Path(args.json).resolve().parent.is_dir():
-        raise FieldDiagError(f"folder of {args.json} does not exist; create it first")
+    if args.json:
+        check_target(args.json, overwrite=True, flag="--json")
+    if args.plots:
+        check_folder(args.plots)
     is_rig = False
     if len(paths) == 1:
         with SessionReader(paths[0]) as s:
             is_rig = bool(s.channels_for_role("force"))
+    if not is_rig:
+        for p in paths:
+            finite_session(p)
     if is_rig:
         from fielddiag.diagnose.rig import diagnose_rig, rig_data_from_session
-        from fielddiag.plots.diagnose import write_rig_plots as write_plots
+        from fielddiag.plots.diagnose import write_rig_plots as write_plots_into
 
         with SessionReader(paths[0]) as s:
             result = diagnose_rig(rig_data_from_session(s))
     else:
         from fielddiag.diagnose.engine import diagnose_sessions
-        from fielddiag.plots.diagnose import write_diagnosis_plots as write_plots
+        from fielddiag.plots.diagnose import write_diagnosis_plots as write_plots_into
 
         result = diagnose_sessions(
             paths,
             added_mass_kg=args.added_mass,
-            progress=lambda msg: print(f"  {msg}", file=sys.stderr),
+            progress=lambda msg: print(f"  {msg}", flush=True),  # stderr: errors only
         )
     out = result.to_dict()
     if args.plots:
-        for png in write_plots(result, args.plots):
+        for png in write_plots(write_plots_into, args.plots, result):
             print(f"plot written: {png}")
     _print_summary(out)
     if args.json:
-        Path(args.json).write_text(json.dumps(out, indent=2))
+        write_text(args.json, json.dumps(out, indent=2) + "\n")
         print(f"JSON written to {args.json}")
     return 0

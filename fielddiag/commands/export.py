@@ -6,6 +6,9 @@ import argparse
 from pathlib import Path
 
 from fielddiag.errors import FieldDiagError
+from fielddiag.validate import arg_existing_file
+
+_HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
 
 EXPORT_FORMATS = ("mdf4", "csv")
 _BY_SUFFIX = {".mf4": "mdf4", ".mdf": "mdf4", ".csv": "csv"}
@@ -24,7 +27,7 @@ def register(sub: argparse._SubParsersAction) -> None:
             "reads either back into the same session."
         ),
     )
-    p.add_argument("session", help="session file (.h5)")
+    p.add_argument("session", type=arg_existing_file(), help="session file (.h5)")
     p.add_argument("-o", "--output", required=True, help="file to write (.mf4 or .csv)")
     p.add_argument(
         "--format",
@@ -51,9 +54,24 @@ def export_format(out: Path, fmt: str | None) -> str:
     return found
 
 
+def _is_session(path: Path) -> bool:
+    """Whether ``path`` is an HDF5 file (a session): exports never replace one."""
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(8) == _HDF5_SIGNATURE
+    except OSError:
+        return False
+
+
 def run(args: argparse.Namespace) -> int:
+    from fielddiag.outputs import check_target
+
     out = Path(args.output)
     fmt = export_format(out, args.format)
+    if out.exists() and (out.suffix.lower() in (".h5", ".hdf5") or _is_session(out)):
+        raise FieldDiagError(f"{out} is a session (HDF5); an export never replaces a session, "
+                             "even with --overwrite: name the output .mf4 or .csv")
+    check_target(out, overwrite=args.overwrite)
     if fmt == "mdf4":
         from fielddiag.io.mdf import export_mdf
 

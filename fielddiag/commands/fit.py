@@ -18,10 +18,18 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from pathlib import Path
+from typing import TYPE_CHECKING
 
 from fielddiag.errors import FieldDiagError
-from fielddiag.identify.terms import TERMS, ForceModel, make_term
+from fielddiag.validate import arg_int, arg_number, band_hz, existing_file, finite_session
+
+if TYPE_CHECKING:
+    from fielddiag.identify.terms import ForceModel
+
+#: The effect terms ``--terms`` takes (fielddiag.identify.terms.TERMS without the linear
+#: spring and damper; named here so that parsing the options does not import the numerics).
+EFFECT_TERMS = ("coupling_spring", "coulomb_friction", "cubic_stiffness", "bump_stop",
+                "asymmetric_damping")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -33,27 +41,31 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("sessions", nargs="+", metavar="SESSION.h5",
                    help="session files fitted together (wheel and body channels by role)")
-    p.add_argument("--added-mass", type=float, metavar="KG", default=None,
+    p.add_argument("--added-mass", type=arg_number("--added-mass", "added_mass"),
+                   metavar="KG", default=None,
                    help="mass added on the body in every session after the first (the first "
                         "is taken without); default: each session's added_mass_kg attribute")
     p.add_argument("--terms", metavar="NAME[,NAME...]", default="",
                    help="effect terms added to the linear spring and damper: "
-                        + ", ".join(n for n in TERMS if n not in ("linear_spring",
-                                                                    "linear_damper")))
-    p.add_argument("--band", nargs=2, type=float, metavar=("LOW_HZ", "HIGH_HZ"), default=None,
+                        + ", ".join(EFFECT_TERMS))
+    p.add_argument("--band", nargs=2, type=arg_number("--band", "frequency"),
+                   metavar=("LOW_HZ", "HIGH_HZ"), default=None,
                    help="band of integration and comparison (default 0.5-30 Hz)")
-    p.add_argument("--start", type=float, default=None, metavar="S",
+    p.add_argument("--start", type=arg_number("--start", "time_s"), default=None, metavar="S",
                    help="use data from this session time on")
-    p.add_argument("--end", type=float, default=None, metavar="S",
+    p.add_argument("--end", type=arg_number("--end", "time_s"), default=None, metavar="S",
                    help="use data up to this session time")
-    p.add_argument("--holdout", type=float, default=0.25, metavar="FRACTION",
+    p.add_argument("--holdout", type=arg_number("--holdout", "holdout"), default=0.25,
+                   metavar="FRACTION",
                    help="fraction at the end of each session kept out of the fit for "
                         "validation (default 0.25; 0 uses everything for the fit)")
     p.add_argument("--validate", action="append", default=[], metavar="SESSION.h5",
                    help="another drive to validate on (repeatable; same added-mass rule)")
-    p.add_argument("--body-mass", type=float, default=None, metavar="KG",
+    p.add_argument("--body-mass", type=arg_number("--body-mass", "body_mass"), default=None,
+                   metavar="KG",
                    help="sprung-mass guess (start value of an absolute fit)")
-    p.add_argument("--max-iterations", type=int, default=50, metavar="N")
+    p.add_argument("--max-iterations", default=50, metavar="N",
+                   type=arg_int("--max-iterations", 1, 10000, "the most iterations"))
     p.add_argument("--json", metavar="OUT", default=None,
                    help="write the result as JSON to OUT ('-' for standard output)")
     p.set_defaults(func=run)
@@ -61,8 +73,15 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def build_model(terms: str) -> ForceModel:
     """Linear spring + damper plus the comma-separated effect terms."""
+    names = [t.strip() for t in terms.split(",") if t.strip()]
+    for name in names:
+        if name not in (*EFFECT_TERMS, "linear_spring", "linear_damper"):
+            raise FieldDiagError(f"--terms {name}: unknown term; choose from "
+                                 f"{', '.join(EFFECT_TERMS)}")
+    from fielddiag.identify.terms import make_term
+
     model = make_term("linear_spring") + make_term("linear_damper")
-    for name in [t.strip() for t in terms.split(",") if t.strip()]:
+    for name in names:
         if name in ("linear_spring", "linear_damper"):
             continue
         model = model + make_term(name)
@@ -70,12 +89,21 @@ def build_model(terms: str) -> ForceModel:
 
 
 def run(args: argparse.Namespace) -> int:
-    from fielddiag.identify.greybox import GreyBoxData, fit_greybox
+    from fielddiag.outputs import check_target
 
-    if not 0.0 <= args.holdout < 0.9:
-        raise FieldDiagError(f"--holdout {args.holdout} must be in [0, 0.9)")
+    for path in [*args.sessions, *args.validate]:
+        existing_file(path)
+    if args.start is not None and args.end is not None and not args.end > args.start:
+        raise FieldDiagError(f"--end {args.end:g} is not after --start {args.start:g}: give "
+                             "an end time later than the start, in s")
+    band = band_hz(args.band)
+    if args.json and args.json != "-":
+        check_target(args.json, overwrite=True, flag="--json")
+    for path in [*args.sessions, *args.validate]:
+        finite_session(path)
     model = build_model(args.terms)
-    band = tuple(args.band) if args.band else None
+
+    from fielddiag.identify.greybox import GreyBoxData, fit_greybox
 
     def load(path: str, index: int) -> GreyBoxData:
         dm = None
@@ -103,9 +131,7 @@ def run(args: argparse.Namespace) -> int:
         if args.json == "-":
             print(text)
         else:
-            try:
-                Path(args.json).write_text(text + "\n")
-            except OSError as exc:
-                raise FieldDiagError(f"cannot write {args.json}: {exc.strerror}; choose "
-                                     "another path") from None
+            from fielddiag.outputs import write_text
+
+            write_text(args.json, text + "\n")
     return 0

@@ -4,9 +4,8 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
-from fielddiag.errors import FieldDiagError
+from fielddiag.validate import arg_existing_file, arg_number, band_hz, finite_session
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -23,46 +22,52 @@ def register(sub: argparse._SubParsersAction) -> None:
             "what to record instead."
         ),
     )
-    p.add_argument("before", help="session of the drive as the car is (.h5)")
-    p.add_argument("after", help="session of the drive with the added mass (.h5)")
-    p.add_argument("--added-mass", type=float, metavar="KG", default=None,
+    p.add_argument("before", type=arg_existing_file(),
+                   help="session of the drive as the car is (.h5)")
+    p.add_argument("after", type=arg_existing_file(),
+                   help="session of the drive with the added mass (.h5)")
+    p.add_argument("--added-mass", type=arg_number("--added-mass", "added_mass"),
+                   metavar="KG", default=None,
                    help="mass added on the body for the second drive (kg); default: the "
                    "difference of the sessions' added_mass_kg attributes")
     p.add_argument("--json", metavar="OUT.json", help="write the full result as JSON")
     p.add_argument("--plots", metavar="DIR",
                    help="write PNGs: transmissibility, restoring force, hysteresis loops")
-    p.add_argument("--band", nargs=2, type=float, metavar=("LO", "HI"),
+    p.add_argument("--band", nargs=2, type=arg_number("--band", "frequency"),
+                   metavar=("LO", "HI"),
                    help="frequency band in Hz (default: chosen from the coherence)")
     p.add_argument("--k3", choices=["auto", "fit", "zero"], default="auto",
                    help="coupling stiffness K3: keep when significant (auto, default), always "
                    "fit, or hold at 0")
-    p.add_argument("--loops", nargs="+", type=float, metavar="HZ",
+    p.add_argument("--loops", nargs="+", type=arg_number("--loops", "frequency"), metavar="HZ",
                    help="frequencies of the hysteresis loops (default: 0.7, 1, 2 and 4 times "
                    "the body natural frequency, where inside the band)")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    from fielddiag.outputs import check_folder, check_target, write_plots, write_text
+
+    band = band_hz(args.band)
+    if args.json:
+        check_target(args.json, overwrite=True, flag="--json")
+    if args.plots:
+        check_folder(args.plots)
+    for path in (args.before, args.after):
+        finite_session(path)
     from fielddiag.identify import IdentifyConfig, identify_sessions
 
-    for path in (args.before, args.after):
-        if not Path(path).is_file():
-            raise FieldDiagError(f"{path} does not exist; give two session files (.h5)")
-    if args.loops and not all(0 < f < 1e4 for f in args.loops):
-        raise FieldDiagError("--loops: give frequencies in Hz above 0, e.g. --loops 1.2 5")
-    if args.json and not Path(args.json).resolve().parent.is_dir():
-        raise FieldDiagError(f"folder of {args.json} does not exist; create it first")
     result = identify_sessions(
         args.before, args.after, added_mass_kg=args.added_mass,
-        band_hz=tuple(args.band) if args.band else None, config=IdentifyConfig(
+        band_hz=band, config=IdentifyConfig(
             k3=args.k3, hysteresis_freqs_hz=tuple(args.loops) if args.loops else None))
     print(result.summary())
     if args.json:
-        result.to_json(args.json)
+        write_text(args.json, result.to_json() + "\n")
         print(f"JSON written to {args.json}")
     if args.plots:
         from fielddiag.plots import write_identify_plots
 
-        for p in write_identify_plots(result, args.plots):
+        for p in write_plots(write_identify_plots, args.plots, result):
             print(f"plot written to {p}")
     return 0

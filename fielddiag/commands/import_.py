@@ -6,7 +6,9 @@ import argparse
 from pathlib import Path
 
 from fielddiag.channels import SessionMetadata
+from fielddiag.errors import ImportFormatError
 from fielddiag.io.formats import FORMATS, detect_format, get_format, import_file, options_from_args
+from fielddiag.validate import arg_number
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -55,7 +57,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="PVS: accelerometer axis that is vertical (default: auto, from gravity)")
     p.add_argument(
         "--added-mass",
-        type=float,
+        type=arg_number("--added-mass", "session_added_mass"),
         default=0.0,
         metavar="KG",
         help="mass added to the body for this drive",
@@ -69,8 +71,18 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from fielddiag.outputs import atomic_file
+
     src = Path(args.file)
-    fmt = get_format(args.format).name if args.format else detect_format(src)
+    if not src.exists():
+        raise ImportFormatError(f"{src} does not exist; give the file (or PVS folder) to import")
+    try:
+        fmt = get_format(args.format).name if args.format else detect_format(src)
+    except ImportFormatError as exc:
+        if not args.format:
+            raise
+        raise ImportFormatError(f"{exc}; give one of them with --format, or leave --format "
+                                "out to detect the format from the file") from None
     meta = SessionMetadata(
         vehicle=args.vehicle,
         corner=args.corner,
@@ -78,13 +90,10 @@ def run(args: argparse.Namespace) -> int:
         added_mass_kg=args.added_mass,
         notes=args.notes,
     )
-    out = import_file(
-        src,
-        args.output,
-        format=fmt,
-        metadata=meta,
-        overwrite=args.overwrite,
-        **options_from_args(fmt, args),
-    )
-    print(f"wrote {out}")
+    # the session is written under a temporary name beside the output and moved into place
+    # only when complete: a failed import (bad row, full disk) leaves nothing behind
+    with atomic_file(args.output, overwrite=args.overwrite) as tmp:
+        import_file(src, tmp, format=fmt, metadata=meta, overwrite=True,
+                    **options_from_args(fmt, args))
+    print(f"wrote {args.output}")
     return 0

@@ -6,13 +6,14 @@ import argparse
 import json
 
 from fielddiag.session_guard import untrusted_info
+from fielddiag.validate import arg_existing_file
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "info", help="show channels, units, duration, gaps and metadata of a session"
     )
-    p.add_argument("session", help="session file (.h5)")
+    p.add_argument("session", type=arg_existing_file(), help="session file (.h5)")
     p.add_argument("--json", action="store_true", help="print JSON for scripts")
     p.set_defaults(func=run)
 

@@ -22,6 +22,7 @@ import sys
 import time
 
 from fielddiag.errors import FieldDiagError
+from fielddiag.validate import arg_number
 
 
 def _interrupt(signum: int, frame: object) -> None:
@@ -65,14 +66,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--output", required=True, metavar="SESSION.h5", help="file to create")
     p.add_argument(
         "--duration",
-        type=float,
+        type=arg_number("--duration", "record_duration"),
         default=None,
         metavar="S",
         help="stop after S seconds (default: Ctrl-C)",
     )
     p.add_argument(
         "--added-mass",
-        type=float,
+        type=arg_number("--added-mass", "session_added_mass"),
         default=0.0,
         metavar="KG",
         help="mass added on the body for this drive (0 = as the car is)",
@@ -90,7 +91,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--status-interval",
-        type=float,
+        type=arg_number("--status-interval", "interval"),
         default=None,
         metavar="S",
         help="seconds between status lines (0.5 on a terminal, else 5)",
@@ -128,8 +129,10 @@ def build_sources(args: argparse.Namespace) -> list:
 
 def run(args: argparse.Namespace) -> int:
     from fielddiag.channels import SessionMetadata
+    from fielddiag.outputs import check_target
     from fielddiag.recorder import Recorder, StatusPrinter, status_lines
 
+    check_target(args.output, overwrite=args.overwrite)
     sources = build_sources(args)
     meta = SessionMetadata(
         vehicle=args.vehicle,

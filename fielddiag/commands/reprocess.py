@@ -7,6 +7,7 @@ import argparse
 import sys
 
 from fielddiag.errors import FieldDiagError
+from fielddiag.validate import arg_int, arg_number
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -30,7 +31,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--scheduler", metavar="tcp://HOST:PORT",
                    help="run on this existing dask cluster (its workers must see the session "
                    "files at the same paths); default: a local cluster")
-    p.add_argument("--workers", type=int, metavar="N", default=None,
+    p.add_argument("--workers", type=arg_int("--workers", 1, 1024, "worker processes"),
+                   metavar="N", default=None,
                    help="worker processes of the local cluster (default: one per core)")
     p.add_argument("--force", action="store_true",
                    help="reprocess pairs whose results are up to date")
@@ -42,7 +44,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--catalog", metavar="FILE.sqlite",
                    help="catalog file (default: fielddiag-catalog.sqlite in the common folder "
                    "of the inputs, where `fielddiag serve --root` on that folder finds it)")
-    p.add_argument("--max-apart-h", type=float, default=24.0, metavar="H",
+    p.add_argument("--max-apart-h", type=arg_number("--max-apart-h", "max_apart"),
+                   default=24.0, metavar="H",
                    help="pair drives by metadata only when recorded at most H hours apart "
                    "(default 24)")
     p.add_argument("--dry-run", action="store_true",

@@ -8,6 +8,7 @@ import json
 from pathlib import Path
 
 from fielddiag.errors import FieldDiagError
+from fielddiag.validate import arg_existing_file
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -20,7 +21,8 @@ def register(sub: argparse._SubParsersAction) -> None:
             "frequencies, and how they move with vehicle speed."
         ),
     )
-    p.add_argument("session", help="session file (.h5) with a body channel")
+    p.add_argument("session", type=arg_existing_file(),
+                   help="session file (.h5) with a body channel")
     p.add_argument("--plots", metavar="DIR", help="write ride_spectrum.png and ride_vs_speed.png")
     p.add_argument("--json", metavar="OUT.json", help="write the analysis as JSON")
     p.set_defaults(func=run)
@@ -46,25 +48,36 @@ def format_ride(a) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from fielddiag.identify.ride import analyse_ride
+    import numpy as np
+
+    from fielddiag.outputs import check_folder, check_target, write_plots, write_text
     from fielddiag.session import SessionReader
 
-    if not Path(args.session).is_file():
-        raise FieldDiagError(f"{args.session} does not exist")
+    if args.json:
+        check_target(args.json, overwrite=True, flag="--json")
+    if args.plots:
+        check_folder(args.plots)
     with SessionReader(args.session) as s:
         body = s.channel_for_role("body")
         t, a = s.read_with_time(body.name)
         speed_t = speed_v = None
         if any(sig.role == "speed" for sig in s.signals):
             speed_t, speed_v = s.signal(s.signal_for_role("speed").name)
+    bad = int(a.size - np.count_nonzero(np.isfinite(a)))
+    if bad:
+        raise FieldDiagError(
+            f"{args.session}: the body channel {body.name} holds {bad} of {a.size} samples that "
+            "are not finite numbers (NaN or infinite); re-import or re-record the drive")
+    from fielddiag.identify.ride import analyse_ride
+
     analysis = analyse_ride(a, t, speed_time_s=speed_t, speed_mps=speed_v)
     print(format_ride(analysis))
     if args.plots:
         from fielddiag.plots import plot_ride
 
-        for png in plot_ride(analysis, args.plots, title=Path(args.session).name):
+        for png in write_plots(plot_ride, args.plots, analysis, title=Path(args.session).name):
             print(f"plot written: {png}")
     if args.json:
-        Path(args.json).write_text(json.dumps(analysis.to_dict(), indent=2))
+        write_text(args.json, json.dumps(analysis.to_dict(), indent=2) + "\n")
         print(f"JSON written to {args.json}")
     return 0

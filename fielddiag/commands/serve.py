@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from fielddiag.errors import FieldDiagError
+from fielddiag.validate import arg_int, arg_number
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -21,10 +22,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--root", default=".", help="folder holding the sessions (default: here)")
     p.add_argument("--host", default="127.0.0.1",
                    help="address to listen on (0.0.0.0: every interface; needs a token)")
-    p.add_argument("--port", type=int, default=8080, help="port (default 8080)")
+    p.add_argument("--port", type=arg_int("--port", 1, 65535, "a TCP port"),
+                   default=8080, help="port (default 8080)")
     p.add_argument("--token", default=None,
                    help="access token (default: generated when --host is not loopback)")
-    p.add_argument("--max-upload-mb", type=float, default=200.0, metavar="MB",
+    p.add_argument("--max-upload-mb", type=arg_number("--max-upload-mb", "upload_mb"),
+                   default=200.0, metavar="MB",
                    help="largest file accepted by upload (default 200 MB)")
     p.add_argument("--show", action="store_true", help="open a browser tab")
     p.set_defaults(func=run)

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 
 from fielddiag.errors import FieldDiagError
+from fielddiag.validate import arg_int, arg_number
 
 
 class _EffectAction(argparse.Action):
@@ -22,11 +24,14 @@ class _EffectAction(argparse.Action):
             if not sep:
                 raise argparse.ArgumentError(self, f"write --param as KEY=VALUE, not {values!r}")
             try:
-                effects[-1][1][key.strip()] = float(value)
+                number = float(value)
             except ValueError:
+                number = math.nan
+            if not math.isfinite(number):
                 raise argparse.ArgumentError(
-                    self, f"{values!r}: {value!r} is not a number"
-                ) from None
+                    self, f"--param {values}: give KEY=VALUE with a finite number, e.g. "
+                    "friction_force_n=60") from None
+            effects[-1][1][key.strip()] = number
         namespace.effects = effects
 
 
@@ -37,19 +42,27 @@ def parse_key_values(items: list[str] | None, what: str) -> dict[str, float]:
         try:
             if not sep:
                 raise ValueError
-            out[key.strip()] = float(value)
+            number = float(value)
+            if not math.isfinite(number):
+                raise ValueError
+            out[key.strip()] = number
         except ValueError:
-            raise FieldDiagError(f"{what} {item!r}: write it as KEY=NUMBER") from None
+            raise FieldDiagError(f"{what} {item}: write it as KEY=NUMBER with a finite "
+                                 "number, e.g. body_mass_kg=400") from None
     return out
 
 
 def add_drive_arguments(p: argparse.ArgumentParser) -> None:
     """Options describing a simulated drive (shared with ``demo``)."""
-    p.add_argument("--duration", type=float, default=120.0, metavar="S", help="drive length (s)")
+    p.add_argument("--duration", type=arg_number("--duration", "sim_duration"),
+                   default=120.0, metavar="S", help="drive length (s)")
     p.add_argument("--road-class", default="C", help="ISO 8608 road class A..H (default C)")
-    p.add_argument("--seed", type=int, default=None, help="random seed (default: random)")
-    p.add_argument("--rate", type=float, default=500.0, metavar="HZ", help="DAQ output rate")
-    p.add_argument("--snr-db", type=float, default=35.0, help="sensor signal-to-noise ratio (dB)")
+    p.add_argument("--seed", type=arg_int("--seed", 0, 2**32 - 1, "a random seed"),
+                   default=None, help="random seed (default: random)")
+    p.add_argument("--rate", type=arg_number("--rate", "daq_rate"),
+                   default=500.0, metavar="HZ", help="DAQ output rate")
+    p.add_argument("--snr-db", type=arg_number("--snr-db", "snr"),
+                   default=35.0, help="sensor signal-to-noise ratio (dB)")
     p.add_argument(
         "--car",
         action="append",
@@ -76,7 +89,8 @@ def add_drive_arguments(p: argparse.ArgumentParser) -> None:
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("simulate", help="simulate a drive of one corner into a session")
     p.add_argument("-o", "--output", required=True, help="session file to write (.h5)")
-    p.add_argument("--added-mass", type=float, default=0.0, metavar="KG", help="mass on the body")
+    p.add_argument("--added-mass", type=arg_number("--added-mass", "session_added_mass"),
+                   default=0.0, metavar="KG", help="mass on the body")
     p.add_argument("--vehicle", default="simulated car")
     p.add_argument("--corner", default="front-left")
     p.add_argument("--overwrite", action="store_true", help="replace the output if it exists")
@@ -86,10 +100,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def drive_from_args(args: argparse.Namespace, added_mass_kg: float, seed: int | None):
     """Run the simulator as the drive options say."""
+    car = parse_key_values(args.car, "--car")
     from fielddiag import sim
 
     fields = {f.name for f in dataclasses.fields(sim.QuarterCarParams)}
-    car = parse_key_values(args.car, "--car")
     unknown = set(car) - fields
     if unknown:
         raise FieldDiagError(
@@ -110,12 +124,15 @@ def drive_from_args(args: argparse.Namespace, added_mass_kg: float, seed: int | 
 
 
 def run(args: argparse.Namespace) -> int:
+    from fielddiag.outputs import atomic_file, check_target
+
+    check_target(args.output, overwrite=args.overwrite)  # before the work
+    drive = drive_from_args(args, args.added_mass, args.seed)
     from fielddiag.simio import drive_to_session
 
-    drive = drive_from_args(args, args.added_mass, args.seed)
-    path = drive_to_session(
-        drive, args.output, vehicle=args.vehicle, corner=args.corner, overwrite=args.overwrite
-    )
+    with atomic_file(args.output, overwrite=args.overwrite) as tmp:
+        drive_to_session(drive, tmp, vehicle=args.vehicle, corner=args.corner, overwrite=True)
+    path = args.output
     eff = ", ".join(e.name for e in drive.effects) or "linear"
     print(
         f"wrote {path}: {drive.duration_s:g} s at {drive.sample_rate_hz:g} Hz, road class "

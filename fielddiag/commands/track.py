@@ -18,9 +18,9 @@ import argparse
 import json
 import sys
 import time
-from pathlib import Path
 
 from fielddiag.errors import FieldDiagError
+from fielddiag.validate import arg_existing_file, arg_number, finite_session
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -30,18 +30,19 @@ def register(sub: argparse._SubParsersAction) -> None:
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("session", metavar="SESSION.h5")
-    p.add_argument("--every", type=float, default=5.0, metavar="S",
+    p.add_argument("session", metavar="SESSION.h5", type=arg_existing_file())
+    p.add_argument("--every", type=arg_number("--every", "interval"), default=5.0, metavar="S",
                    help="print a line every S seconds of data (default 5)")
-    p.add_argument("--block", type=float, default=0.1, metavar="S",
+    p.add_argument("--block", type=arg_number("--block", "interval"), default=0.1, metavar="S",
                    help="block length fed at once, as the recorder does (default 0.1 s)")
     p.add_argument("--terms", metavar="NAME[,NAME...]", default="",
                    help="effect terms added to the linear spring and damper")
-    p.add_argument("--cutoff", type=float, default=0.5, metavar="HZ",
+    p.add_argument("--cutoff", type=arg_number("--cutoff", "frequency"), default=0.5, metavar="HZ",
                    help="high-pass corner of the causal integration (default 0.5 Hz)")
-    p.add_argument("--target", type=float, default=5.0, metavar="PCT",
+    p.add_argument("--target", type=arg_number("--target", "percent"), default=5.0, metavar="PCT",
                    help="relative standard deviation counted as enough (default 5 %%)")
-    p.add_argument("--body-mass", type=float, default=None, metavar="KG",
+    p.add_argument("--body-mass", type=arg_number("--body-mass", "body_mass"),
+                   default=None, metavar="KG",
                    help="known sprung mass: report absolute values too")
     p.add_argument("--compare", action="store_true",
                    help="also fit off-line and report the time to come within 5 %% of it")
@@ -52,6 +53,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from fielddiag.outputs import check_target, write_text
+
+    if args.json and args.json != "-":
+        check_target(args.json, overwrite=True, flag="--json")
+    finite_session(args.session)
     from fielddiag.commands.fit import build_model
     from fielddiag.identify.greybox import accel_unit_factor
     from fielddiag.identify.online import (
@@ -62,8 +68,6 @@ def run(args: argparse.Namespace) -> int:
     )
     from fielddiag.session import SessionReader
 
-    if args.every <= 0 or args.block <= 0:
-        raise FieldDiagError("--every and --block must be positive")
     model = build_model(args.terms)
     with SessionReader(args.session) as s:
         wch, bch = s.channel_for_role("wheel"), s.channel_for_role("body")
@@ -105,10 +109,6 @@ def run(args: argparse.Namespace) -> int:
         if args.json == "-":
             print(text)
         else:
-            try:
-                Path(args.json).write_text(text + "\n")
-            except OSError as exc:
-                raise FieldDiagError(f"cannot write {args.json}: {exc.strerror}; choose "
-                                     "another path") from None
+            write_text(args.json, text + "\n")
     return 0
 

@@ -16,6 +16,7 @@ import sys
 import time
 
 from fielddiag.errors import FieldDiagError
+from fielddiag.validate import arg_int, arg_number
 
 
 def _interrupt(signum: int, frame: object) -> None:
@@ -29,37 +30,51 @@ def register(sub: argparse._SubParsersAction) -> None:
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("--rate", type=float, default=500.0, metavar="HZ", help="sample rate (500)")
-    p.add_argument("--channels", type=int, default=2, metavar="N", help="channels (2)")
+    p.add_argument("--rate", type=arg_number("--rate", "daq_rate"),
+                   default=500.0, metavar="HZ", help="sample rate (500)")
+    p.add_argument("--channels", type=arg_int("--channels", 1, 64, "channels"),
+                   default=2, metavar="N", help="channels (2)")
     p.add_argument(
         "--format", choices=("int16", "int32", "float32"), default="int32",
         help="sample format on the wire (int32)",
     )
-    p.add_argument("--samples-per-frame", type=int, default=None, metavar="N",
+    p.add_argument("--samples-per-frame",
+                   type=arg_int("--samples-per-frame", 1, 65535, "samples per frame"),
+                   default=None, metavar="N",
                    help="samples per channel per frame (default: 100 frames/s)")
-    p.add_argument("--full-scale-g", type=float, default=16.0, metavar="G",
+    p.add_argument("--full-scale-g", type=arg_number("--full-scale-g", "full_scale_g"),
+                   default=16.0, metavar="G",
                    help="full scale of the integer formats in g (16)")
-    p.add_argument("--corrupt", type=float, default=0.0, metavar="RATE",
+    p.add_argument("--corrupt", type=arg_number("--corrupt", "corrupt"),
+                   default=0.0, metavar="RATE",
                    help="probability that a byte sent is altered (e.g. 1e-3)")
-    p.add_argument("--garbage-every", type=float, default=None, metavar="S",
+    p.add_argument("--garbage-every", type=arg_number("--garbage-every", "interval"),
+                   default=None, metavar="S",
                    help="insert a burst of random bytes every S seconds")
-    p.add_argument("--disconnect-at", type=float, default=None, metavar="S",
+    p.add_argument("--disconnect-at", type=arg_number("--disconnect-at", "time_s"),
+                   default=None, metavar="S",
                    help="pull the cable S seconds after streaming started")
-    p.add_argument("--disconnect-for", type=float, default=2.0, metavar="S",
+    p.add_argument("--disconnect-for", type=arg_number("--disconnect-for", "interval"),
+                   default=2.0, metavar="S",
                    help="for this long (2)")
-    p.add_argument("--stall-at", type=float, default=None, metavar="S",
+    p.add_argument("--stall-at", type=arg_number("--stall-at", "time_s"), default=None, metavar="S",
                    help="stop sending S seconds after streaming started")
-    p.add_argument("--stall-for", type=float, default=1.0, metavar="S",
+    p.add_argument("--stall-for", type=arg_number("--stall-for", "interval"),
+                   default=1.0, metavar="S",
                    help="for this long (1)")
     p.add_argument("--power-cycle", action="store_true",
                    help="reboot when the cable comes back (bus-powered device)")
-    p.add_argument("--clock-drift-ppm", type=float, default=0.0, metavar="PPM",
+    p.add_argument("--clock-drift-ppm", type=arg_number("--clock-drift-ppm", "drift_ppm"),
+                   default=0.0, metavar="PPM",
                    help="device clock runs fast by this much")
-    p.add_argument("--duration", type=float, default=120.0, metavar="S",
+    p.add_argument("--duration", type=arg_number("--duration", "sim_duration"),
+                   default=120.0, metavar="S",
                    help="length of the simulated drive, looped (120)")
-    p.add_argument("--added-mass", type=float, default=0.0, metavar="KG",
+    p.add_argument("--added-mass", type=arg_number("--added-mass", "session_added_mass"),
+                   default=0.0, metavar="KG",
                    help="mass added on the body in the simulation")
-    p.add_argument("--seed", type=int, default=0, help="seed of road, speed and faults")
+    p.add_argument("--seed", type=arg_int("--seed", 0, 2**32 - 1, "a random seed"),
+                   default=0, help="seed of road, speed and faults")
     p.add_argument("--serial-number", default="VDAQ-0001", help="serial number it reports")
     p.set_defaults(func=run)
 

@@ -21,6 +21,7 @@ import tempfile
 import time
 
 from fielddiag.errors import DeviceError
+from fielddiag.validate import arg_int, arg_number
 
 
 def _interrupt(signum: int, frame: object) -> None:
@@ -43,11 +44,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--dbc", default=None, metavar="FILE",
                    help="DBC with SPEED and WHEEL_SPEEDS messages (default: built-in, "
                         "same layout as the Toyota RAV4 DBC)")
-    p.add_argument("--duration", type=float, default=300.0, metavar="S",
+    p.add_argument("--duration", type=arg_number("--duration", "sim_duration"),
+                   default=300.0, metavar="S",
                    help="length of the random speed profile, looped (300)")
-    p.add_argument("--speed-kmh", type=float, default=None, metavar="V",
+    p.add_argument("--speed-kmh", type=arg_number("--speed-kmh", "speed_kmh"),
+                   default=None, metavar="V",
                    help="constant speed instead of a random drive")
-    p.add_argument("--seed", type=int, default=0, help="seed of the speed profile")
+    p.add_argument("--seed", type=arg_int("--seed", 0, 2**32 - 1, "a random seed"),
+                   default=0, help="seed of the speed profile")
     p.set_defaults(func=run)
 
 

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import json
 import os
+import secrets
 from collections.abc import Iterable
 from dataclasses import fields
 from pathlib import Path
@@ -34,7 +35,8 @@ from typing import Any
 import numpy as np
 
 from fielddiag.channels import ChannelSpec, Event, Gap, SessionMetadata, SignalSpec
-from fielddiag.errors import ImportFormatError, SessionError
+from fielddiag.errors import ImportFormatError
+from fielddiag.outputs import check_target, os_error
 from fielddiag.session import CAN_DATA_BYTES, CAN_FLAG_FD, CAN_FRAME_DTYPE, SessionReader
 
 MANIFEST_FORMAT = "fielddiag-csv"
@@ -89,17 +91,13 @@ def export_csv(
         A target exists and ``overwrite`` is False, or the folder does not exist.
     """
     out_path = Path(out_path)
-    if not out_path.parent.exists():
-        raise SessionError(f"folder {out_path.parent} does not exist; create it first")
+    check_target(out_path, overwrite=overwrite)
     with SessionReader(session_path) as s:
         paths = export_paths(out_path, s)
-        existing = [p for p in paths.values() if p.exists()]
-        if existing and not overwrite:
-            raise SessionError(
-                f"{existing[0]} already exists; choose another file name, or pass --overwrite "
-                "to replace it"
-            )
-        tmp = {k: p.with_name(f".{p.name}.partial-{os.getpid()}") for k, p in paths.items()}
+        for p in paths.values():  # every file: regular, replaced only with overwrite
+            check_target(p, overwrite=overwrite)
+        token = secrets.token_hex(4)
+        tmp = {k: p.with_name(f".{p.name}.tmp-{token}") for k, p in paths.items()}
         try:
             manifest = _write_all(s, paths, tmp)
             with open(tmp["manifest"], "w", encoding="utf-8") as fh:
@@ -107,7 +105,7 @@ def export_csv(
             for key, p in paths.items():
                 os.replace(tmp[key], p)
         except OSError as exc:
-            raise SessionError(f"cannot write {out_path}: {exc}") from None
+            raise os_error(out_path, exc) from None
         finally:
             for t in tmp.values():
                 t.unlink(missing_ok=True)

@@ -19,6 +19,7 @@ import csv
 import difflib
 import math
 import os
+from collections import Counter
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,6 +30,11 @@ from fielddiag.channels import ChannelSpec, SessionMetadata, SignalSpec
 from fielddiag.errors import ImportFormatError
 from fielddiag.session import unique_name, write_session
 from fielddiag.units import QUANTITIES, factor_to_si
+
+#: Bytes looked at for NUL bytes (a binary file); a header longer than this many characters
+#: is not a CSV header (a 50 MB line of garbage would otherwise be split into columns).
+_SNIFF_BYTES = 64 * 1024
+_MAX_HEADER_CHARS = 1_000_000
 
 #: role -> (unit stored, kind of quantity)
 KNOWN_ROLES = {
@@ -114,26 +120,60 @@ def read_csv_table(
     """
     name = path.name
     try:
-        fh = open(path, newline="", encoding="utf-8-sig")
+        with open(path, "rb") as fh:
+            head = fh.read(_SNIFF_BYTES)
     except FileNotFoundError:
         raise ImportFormatError(f"{path}: no such file") from None
+    except IsADirectoryError:
+        raise ImportFormatError(f"{path} is a folder; give a CSV file") from None
     except OSError as exc:
         raise ImportFormatError(f"{path}: cannot read it ({exc.strerror})") from None
-    with fh:
-        header_line = fh.readline()
+    if b"\0" in head:
+        raise ImportFormatError(
+            f"{name}: binary data, not CSV text; export the recording as CSV (a header row, "
+            "then one row of numbers per sample) or give --format for its real format"
+        )
+    # UTF-8 (with or without a byte-order mark) first; files from older Windows tools are
+    # often Latin-1 (a degree sign or an accent in the header), read as such rather than
+    # refused: every byte is a Latin-1 character, and the numbers are ASCII either way
+    try:
+        return _read_table(path, columns, delimiter, "utf-8-sig")
+    except UnicodeDecodeError:
+        return _read_table(path, columns, delimiter, "latin-1")
+
+
+def _read_table(
+    path: Path, columns: list[str], delimiter: str | None, encoding: str
+) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    name = path.name
+    with open(path, newline="", encoding=encoding) as fh:
+        header_line = fh.readline(_MAX_HEADER_CHARS + 1)
+        if len(header_line) > _MAX_HEADER_CHARS:
+            raise ImportFormatError(
+                f"{name}: the first line is longer than {_MAX_HEADER_CHARS // 1000} kB with no "
+                "line break; give a CSV file with a header row, then one row per sample"
+            )
         if not header_line.strip():
             raise ImportFormatError(
-                f"{name}: the file is empty; it needs a header row and at least two data rows"
+                f"{name}: the file is empty; give a CSV file with a header row and at least "
+                "two data rows"
             )
         delim = delimiter or _sniff_delimiter(header_line)
-        header = [h.strip() for h in next(csv.reader([header_line], delimiter=delim))]
+        try:
+            header = [h.strip() for h in next(csv.reader([header_line], delimiter=delim))]
+        except csv.Error as exc:
+            raise ImportFormatError(f"{name} row 1: not a CSV header ({exc}); fix the first "
+                                    "line") from None
         missing = [c for c in columns if c not in header]
         if missing:
+            shown = ", ".join(repr(h) for h in header[:20])
+            more = f" and {len(header) - 20} more" if len(header) > 20 else ""
             raise ImportFormatError(
                 f"{name}: no column {', '.join(repr(m) for m in missing)}; the header has "
-                f"{', '.join(repr(h) for h in header)}. Check the --role/--time column names"
+                f"{shown}{more}. Check the --role/--time column names"
             )
-        dup = {h for h in header if header.count(h) > 1 and h in columns}
+        counts = Counter(header)
+        dup = {c for c in columns if counts[c] > 1}
         if dup:
             raise ImportFormatError(
                 f"{name}: column {sorted(dup)[0]!r} appears twice in the header"
@@ -142,22 +182,30 @@ def read_csv_table(
         values: list[list[float]] = [[] for _ in columns]
         lines: list[int] = []
         reader = csv.reader(fh, delimiter=delim)
-        for row in reader:
-            line_no = 1 + reader.line_num  # the header line was read before the reader
-            if not row or all(not cell.strip() for cell in row):
-                continue
-            if len(row) != len(header):
-                raise ImportFormatError(
-                    f"{name} row {line_no}: {len(row)} fields, the header has {len(header)}; "
-                    "fix or delete that row"
-                )
-            for k, i in enumerate(index):
-                values[k].append(_cell_value(name, line_no, columns[k], row[i]))
-            lines.append(line_no)
+        line_no = 1
+        try:
+            for row in reader:
+                line_no = 1 + reader.line_num  # the header line was read before the reader
+                if not row or all(not cell.strip() for cell in row):
+                    continue
+                if len(row) != len(header):
+                    raise ImportFormatError(
+                        f"{name} row {line_no}: {len(row)} fields, the header has "
+                        f"{len(header)}; fix or delete that row"
+                    )
+                for k, i in enumerate(index):
+                    values[k].append(_cell_value(name, line_no, columns[k], row[i]))
+                lines.append(line_no)
+        except csv.Error as exc:
+            raise ImportFormatError(
+                f"{name} row {1 + reader.line_num}: not a CSV row ({exc}); fix or delete "
+                "that row"
+            ) from None
     n = len(lines)
     if n < 2:
         raise ImportFormatError(
-            f"{name}: {n} data row{'s' if n != 1 else ''}; a session needs at least two samples"
+            f"{name}: {n} data row{'s' if n != 1 else ''}; a session needs at least two "
+            "samples: give a file with a header row and two or more data rows"
         )
     data = {c: np.asarray(v, dtype="f8") for c, v in zip(columns, values, strict=True)}
     return data, np.asarray(lines, dtype="i8")

@@ -194,7 +194,10 @@ def _header_fields(head: bytes) -> list[str]:
     line = head.split(b"\n", 1)[0].decode("utf-8-sig", errors="replace").strip()
     counts = {d: line.count(d) for d in (",", ";", "\t")}
     delim = max(counts, key=counts.get)
-    return [h.strip() for h in next(csv.reader([line], delimiter=delim or ","), [])]
+    try:
+        return [h.strip() for h in next(csv.reader([line], delimiter=delim or ","), [])]
+    except csv.Error:  # not a CSV header (binary data): the importer says what is wrong
+        return []
 
 
 def manifest_path(csv_path: Path) -> Path:
@@ -253,7 +256,9 @@ def detect_format(path: str | os.PathLike) -> str:
             return "canlog"
         return "csv"
     if suffix in (".mf4", ".mdf"):
-        raise ImportFormatError(f"{p.name}: not an MDF file (no MDF header); is it corrupt?")
+        raise ImportFormatError(f"{p.name}: not an MDF file (no MDF header); is it corrupt? "
+                                "Export it again from the logger, or give --format if it is "
+                                "another format")
     known = sorted({s for f in FORMATS.values() for s in f.suffixes})
     raise ImportFormatError(
         f"cannot tell the format of {p.name} from its name or contents (known endings: "
@@ -432,8 +437,8 @@ def read_csv_numeric(
     try:
         with open(path, encoding="utf-8-sig") as fh:
             header = [h.strip() for h in next(csv.reader([fh.readline()], delimiter=delimiter))]
-    except (OSError, StopIteration):
-        header = []
+    except (OSError, StopIteration, UnicodeDecodeError, csv.Error):
+        header = []  # read_csv_columns says what is wrong
     if header and all(c in header for c in columns):
         idx = [header.index(c) for c in columns]
         try:

@@ -48,7 +48,8 @@ import numpy as np
 
 from drivers.can_decode import FD_LENGTHS, payload_lengths
 from fielddiag.channels import ChannelSpec, Event, Gap, SessionMetadata, SignalSpec
-from fielddiag.errors import FieldDiagError, ImportFormatError, SessionError
+from fielddiag.errors import FieldDiagError, ImportFormatError
+from fielddiag.outputs import atomic_file
 from fielddiag.session import (
     CAN_DATA_BYTES,
     CAN_FLAG_BRS,
@@ -183,9 +184,8 @@ def export_mdf(
     from asammdf.blocks.v4_constants import BUS_TYPE_CAN, SOURCE_BUS
 
     out_path = Path(out_path)
-    _check_target(out_path, overwrite)
-    tmp = out_path.with_name(f".{out_path.name}.partial-{os.getpid()}.mf4")
-    with SessionReader(session_path) as s:
+    with atomic_file(out_path, overwrite=overwrite) as tmp, \
+            SessionReader(session_path) as s:
         md = s.metadata
         mdf = MDF(version="4.10")
         try:
@@ -262,28 +262,12 @@ def export_mdf(
             data = json.dumps(manifest, indent=1).encode()
             mdf.attach(data, file_name=MANIFEST_NAME, comment="fielddiag session description",
                        mime="application/json", embedded=True)
-            try:
-                written = Path(mdf.save(tmp, overwrite=True, compression=2))
-            except OSError as exc:
-                raise SessionError(f"cannot write {out_path}: {exc}") from None
+            written = Path(mdf.save(tmp, overwrite=True, compression=2))
+            if written != tmp:  # asammdf may have changed the name
+                os.replace(written, tmp)
         finally:
             mdf.close()
-    try:
-        _check_target(out_path, overwrite)
-        os.replace(written, out_path)
-    finally:
-        written.unlink(missing_ok=True)
-        tmp.unlink(missing_ok=True)
     return out_path
-
-
-def _check_target(path: Path, overwrite: bool) -> None:
-    if path.exists() and not overwrite:
-        raise SessionError(
-            f"{path} already exists; choose another file name, or pass --overwrite to replace it"
-        )
-    if not path.parent.exists():
-        raise SessionError(f"folder {path.parent} does not exist; create it first")
 
 
 # ============================================================================ import
@@ -308,7 +292,9 @@ def _open_mdf(path: Path):
         sys.unraisablehook = hook
     if error is not None:
         raise ImportFormatError(
-            f"{path.name}: not a readable MDF file ({error}); is it corrupt or cut short?"
+            f"{path.name}: not a readable MDF file ({' '.join(str(error).split())}); is it "
+            "corrupt or cut short? "
+            "Export it again from the logger"
         )
     if int(str(mdf.version).split(".")[0]) < 4:
         mdf.close()

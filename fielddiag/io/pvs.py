@@ -81,12 +81,31 @@ def _find_files(path: Path, side: str | None) -> tuple[Path, str]:
     return path, side or file_side or "left"
 
 
+#: A PVS header is a few hundred characters; a longer first line is not a PVS file.
+_MAX_HEADER_CHARS = 100_000
+
+
+def _header(path: Path) -> list[str]:
+    """The column names of a PVS CSV file's first line, or a one-line error for a file
+    that is not CSV text (binary data, no line break)."""
+    try:
+        with open(path, "rb") as fh:
+            raw = fh.readline(_MAX_HEADER_CHARS + 1)
+    except OSError as exc:
+        raise ImportFormatError(f"{path}: cannot read it ({exc.strerror}); give a PVS "
+                                "dataset_gps_mpu_*.csv file or its folder") from None
+    if b"\0" in raw or len(raw) > _MAX_HEADER_CHARS:
+        raise ImportFormatError(f"{path.name}: not a CSV text file; give a PVS "
+                                "dataset_gps_mpu_*.csv file or its folder")
+    text = raw.decode("utf-8-sig", errors="replace")
+    return [h.strip() for h in text.strip().split(",")]
+
+
 def _read(path: Path, columns: list[str]) -> dict[str, np.ndarray]:
     """Read named columns fast; a missing column is named with what a PVS file holds."""
     from fielddiag.io.formats import read_csv_numeric
 
-    with open(path, encoding="utf-8-sig") as fh:
-        header = [h.strip() for h in fh.readline().strip().split(",")]
+    header = _header(path)
     missing = [c for c in columns if c not in header]
     if missing:
         raise ImportFormatError(
@@ -134,8 +153,7 @@ def import_pvs(
     if side is not None and side not in ("left", "right"):
         raise ImportFormatError(f"--side must be left or right, not {side!r}")
     src, side = _find_files(Path(path), side)
-    with open(src, encoding="utf-8-sig") as fh:
-        header = [h.strip() for h in fh.readline().strip().split(",")]
+    header = _header(src)
     has_gps = all(c in header for c in GPS_COLUMNS)
     sensor_cols = [c for c in MPU_COLUMNS[1:] if c in header]
     required = ["timestamp", *(f"acc_{a}_{p}" for p in _ROLE_OF for a in "xyz")]
@@ -246,8 +264,7 @@ def _label_events(src: Path, side: str, n: int, t: np.ndarray) -> list[Event]:
     labels_path = src.with_name("dataset_labels.csv")
     if not labels_path.is_file():
         return []
-    with open(labels_path, encoding="utf-8-sig") as fh:
-        header = [h.strip() for h in fh.readline().strip().split(",")]
+    header = _header(labels_path)
     other = "right" if side == "left" else "left"
     cols = [h for h in header if h and not h.endswith(f"_{other}") and h != "no_speed_bump"]
     if not cols:

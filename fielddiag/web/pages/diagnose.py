@@ -17,6 +17,7 @@ from nicegui import background_tasks, run, ui
 from fielddiag.catalog import result_path
 from fielddiag.errors import FieldDiagError
 from fielddiag.pairs import pair_of
+from fielddiag.validate import number
 from fielddiag.web.charts import xy_options
 from fielddiag.web.layout import not_available, notify_error, notify_exception, page_title
 from fielddiag.web.pages.identify import write_result
@@ -192,9 +193,14 @@ def render(state, session: str = "", after: str = "") -> None:
         if len(rels) == 2 and rels[0] == rels[1]:
             notify_error("The two drives must be different sessions.")
             return
-        if len(rels) == 2 and (mass.value is None or float(mass.value) <= 0):
-            notify_error("Give the mass added for the second drive in kg (more than 0).")
-            return
+        added_mass_kg = None
+        if len(rels) == 2:
+            try:
+                added_mass_kg = number("" if mass.value is None else mass.value,
+                                       "added mass", "added_mass")
+            except FieldDiagError as exc:
+                notify_error(f"{exc} for the second drive.")
+                return
         try:
             paths = [state.resolve(r) for r in rels]
         except FieldDiagError as exc:
@@ -206,8 +212,7 @@ def render(state, session: str = "", after: str = "") -> None:
             all(pair_of(rels[0], list(summaries.values()))[:2]))
         job = state.jobs.submit(
             KIND, f"diagnose {' / '.join(rels)}", run_diagnosis, backend.target, paths,
-            result_path(paths[0], KIND_SINGLE if alone_in_pair else KIND),
-            None if len(rels) == 1 else float(mass.value))
+            result_path(paths[0], KIND_SINGLE if alone_in_pair else KIND), added_mass_kg)
         job.params["session"] = rels[0]
         watch(job, rels[0])
 

@@ -19,6 +19,7 @@ from nicegui import run, ui
 from fielddiag.catalog import result_path
 from fielddiag.errors import FieldDiagError
 from fielddiag.pairs import pair_of
+from fielddiag.validate import number
 from fielddiag.web.layout import not_available, notify_error, notify_exception, page_title
 from fielddiag.web.results_view import render_identification
 from fielddiag.web.services import call_with_supported, identification_backend, load_result
@@ -157,8 +158,11 @@ def render(state, before: str = "", after: str = "") -> None:
         if b == a:
             notify_error("'before' and 'after' must be two different sessions.")
             return
-        if mass.value is None or float(mass.value) <= 0:
-            notify_error("Give the added mass in kg (more than 0).")
+        try:
+            added_mass_kg = number("" if mass.value is None else mass.value, "added mass",
+                                   "added_mass")
+        except FieldDiagError as exc:
+            notify_error(f"{exc}.")
             return
         try:
             bp, ap = state.resolve(b), state.resolve(a)
@@ -167,7 +171,7 @@ def render(state, before: str = "", after: str = "") -> None:
             return
         job = state.jobs.submit(
             KIND, f"identify {b} / {a}", run_identification, backend.target, bp, ap,
-            float(mass.value), result_path(bp, KIND),
+            added_mass_kg, result_path(bp, KIND),
         )
         watch(job)
 

@@ -12,8 +12,10 @@ from nicegui import ui
 
 from fielddiag.catalog import OutsideRootError, resolve_under_root
 from fielddiag.channels import SessionMetadata
+from fielddiag.errors import FieldDiagError
 from fielddiag.io.csv_import import CsvImportOptions
 from fielddiag.units import ACCEL_UNITS, SPEED_UNITS, TIME_UNITS
+from fielddiag.validate import RANGES, number
 from fielddiag.web.layout import notify_error
 
 IMPORT_FOLDER = "imports"
@@ -80,7 +82,9 @@ def import_panel(state, on_imported: Callable[[], Awaitable[None] | None]) -> No
                                            label="speed unit").classes("w-28")
                     vehicle = ui.input("vehicle").classes("w-40").mark("csv-vehicle")
                     corner = ui.input("corner").classes("w-32")
-                    mass = ui.number("added mass [kg]", value=0, min=0).classes("w-32")
+                    mass = ui.number("added mass [kg]", value=0, min=0,
+                                     max=RANGES["session_added_mass"].hi).classes(
+                                         "w-32").mark("csv-added-mass")
                 import_button = ui.button("Import", icon="input").mark("csv-import")
             form.set_visibility(False)
 
@@ -148,8 +152,14 @@ def import_panel(state, on_imported: Callable[[], Awaitable[None] | None]) -> No
         opts = CsvImportOptions(roles=roles, time_column=time_col.value,
                                 time_unit=time_unit.value, accel_unit=accel_unit.value,
                                 speed_unit=speed_unit.value)
+        try:
+            added_mass_kg = number(0.0 if mass.value is None else mass.value, "added mass",
+                                   "session_added_mass")
+        except FieldDiagError as exc:
+            notify_error(str(exc))
+            return
         meta = SessionMetadata(vehicle=vehicle.value or "", corner=corner.value or "",
-                               added_mass_kg=float(mass.value or 0.0),
+                               added_mass_kg=added_mass_kg,
                                notes=f"imported from {uploaded['name']} via the dashboard")
         job = state.jobs.submit("import", f"import {uploaded['name']}", import_csv, src, out,
                                 opts, meta)
