@@ -7,6 +7,9 @@ runs every source in its own thread. What the sources read goes to the session a
 arrives: raw DAQ counts bit for bit with their session times, gaps with the samples
 lost, decoded CAN signals in SI units, every raw CAN frame, events. Counters (frames
 received/lost, CRC errors, ...) are kept in the session and in :meth:`Recorder.status`.
+The counters stored always describe the data stored: each source's counters are taken in
+its own thread with the block it just read and reach the file in the same flush as that
+block, so a killed recorder leaves a file whose counters match its samples and gaps.
 
 The device clock drift estimated by the serial DAQ driver cannot go into the root
 attributes (a SWMR file cannot get new attributes once recording has started), so it is
@@ -166,6 +169,7 @@ class Recorder:
         self._last_drift_t = -1.0
         self._rate_hist: list[tuple[float, int]] = []
         self._reserve = 0
+        self._stored_counters: dict[int, dict[str, int]] = {}  # per source, as stored
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> Recorder:
@@ -278,7 +282,7 @@ class Recorder:
                 return
             if block is not None and not block.is_empty():
                 try:
-                    self._store(src, block)
+                    self._store(src, block, i)
                 except Exception as exc:  # SessionError: disk full, file gone...
                     self._fail(exc)
                     return
@@ -287,45 +291,59 @@ class Recorder:
                     self._finished.add(i)
                 return
 
-    def _store(self, src: Source, block: Block) -> None:
+    def _store(self, src: Source, block: Block, index: int) -> None:
         w = self.writer
+        # the source's counters now describe exactly what it has handed over, this block
+        # included (taken in its own thread, before it reads on)
+        counters = src.counters()
+        cal = None
         if block.n_samples:
             # the live view first: appending waits while the writer flushes to disk (up
             # to a few hundred ms), which the live plot should not
             cal = block.calibrated(src.channels)
             with self._lock:
                 self._ring.push(cal.time_s, cal.samples)
-            w.append_daq(block.samples, block.time_s)
+        for name, (t, v) in block.signals.items():
             with self._lock:
-                self._samples += block.n_samples
+                self._sig_rings[name].push(t, v[:, None])
+        with w.same_flush():  # the block and the counters that count it: one flush
+            if block.n_samples:
+                w.append_daq(block.samples, block.time_s)
+            for name, (t, v) in block.signals.items():
+                w.append_signal(name, t, v)
+            if block.can_frames is not None and len(block.can_frames):
+                w.append_can_frames(block.can_frames)
+            for g in block.gaps:
+                w.add_gap(g.start_s, g.end_s, g.samples_lost, g.cause)
+            for e in block.events:
+                w.add_event(e.time_s, e.label)
+            with self._lock:
+                self._stored_counters[index] = counters
+                total = self._sum_counters(self._stored_counters.values())
+            w.set_counters(**total)
+        with self._lock:
+            self._samples += block.n_samples
+            self._gaps += len(block.gaps)
+            self._events.extend((e.time_s, e.label) for e in block.events)
+        if cal is not None:
             for fn in list(self.block_listeners):
                 try:
                     fn(cal)
                 except Exception:
                     self.listener_errors += 1
-        for name, (t, v) in block.signals.items():
-            with self._lock:
-                self._sig_rings[name].push(t, v[:, None])
-            w.append_signal(name, t, v)
-        if block.can_frames is not None and len(block.can_frames):
-            w.append_can_frames(block.can_frames)
-        for g in block.gaps:
-            w.add_gap(g.start_s, g.end_s, g.samples_lost, g.cause)
-        for e in block.events:
-            w.add_event(e.time_s, e.label)
-            with self._lock:
-                self._events.append((e.time_s, e.label))
-        if block.gaps:
-            with self._lock:
-                self._gaps += len(block.gaps)
 
-    def _counters(self) -> dict[str, int]:
+    @staticmethod
+    def _sum_counters(per_source: Any) -> dict[str, int]:
         total = dict.fromkeys(COUNTER_NAMES, 0)
-        for s in self.sources:
-            for k, v in s.counters().items():
+        for counters in per_source:
+            for k, v in counters.items():
                 if k in total:
                     total[k] += int(v)
         return total
+
+    def _counters(self) -> dict[str, int]:
+        """The sources' counters now (live; the file holds those of the data stored)."""
+        return self._sum_counters(s.counters() for s in self.sources)
 
     def _housekeeping(self) -> None:
         while not self._stop.wait(0.25):
@@ -346,7 +364,6 @@ class Recorder:
                 self._fail(self._disk_full_error(free))
                 return
             try:
-                w.set_counters(**self._counters())
                 self._append_drift()
             except SessionError as exc:
                 self._fail(exc)
@@ -404,7 +421,8 @@ class Recorder:
         w = self.writer
         try:
             if w.error is None:
-                w.set_counters(**self._counters())
+                if self.error is None:  # every block read was stored: count them all
+                    w.set_counters(**self._counters())
                 self._append_drift_final()
             w.close()
         except SessionError as exc:
