@@ -104,6 +104,8 @@ class DeviceClockFit:
         self.max_drift = float(max_drift_ppm) * 1e-6
         self.min_drift_span_s = float(min_drift_span_s)
         self.step_memory_s = 4.0 * self.window_s
+        self.young_span_s = 30.0
+        self.recent_s = 2.0
         self.reset()
 
     def reset(self) -> None:
@@ -204,8 +206,15 @@ class DeviceClockFit:
                     (p for p in self._points if p[0] - ref >= -self.step_memory_s),
                     maxlen=self._points.maxlen,
                 )
+        span = float(x[-1] - x[0])
         if a is None:  # too short a span for a slope: keep the last one
             a = float(np.min(y - b * x))
+        elif span < self.young_span_s:
+            # a young fit's slope is uncertain: put the line under the recent points
+            # rather than under the middle of the history, so a slope error is
+            # extrapolated over seconds, not over half the history
+            recent = x >= -self.recent_s
+            a = float(np.min(y[recent] - b * x[recent]))
         self._a, self._b, self._ref = float(a), float(b), ref
         self.fit_offset_s = self._a
         self._dirty = False
