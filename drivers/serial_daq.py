@@ -470,7 +470,10 @@ class SerialDAQSource(_SerialPortSource):
         n = info.n_channels
         roles = list(self.roles or [c.role for c in info.channels])
         if len(roles) != n:
-            raise DeviceError(f"{self.url}: {len(roles)} roles given for {n} channels")
+            raise DeviceError(
+                f"{self.url}: {len(roles)} roles given for a device with {n} channels; give "
+                "one role per channel in ?roles="
+            )
         self.channels = _channel_specs(
             n,
             roles,
@@ -682,7 +685,7 @@ class SerialDAQSource(_SerialPortSource):
                     self._epochs += 1
                     self._epoch_gap_pending = True
                     self._last_seq = None
-                    events.append(Event(t_arr, "DAQ restarted (new clock epoch)"))
+                    events.append(Event(t_arr, "DAQ restarted (its clock began again)"))
                     self._held = []
                     for g, tg in frames[k:]:
                         self._sync.observe(g.t_us / 1e6 + g.n_samples / rate, tg)
@@ -856,7 +859,11 @@ class SerialTextSource(_SerialPortSource):
                     break
         except _PORT_ERRORS as exc:
             self._close_port()
-            raise DeviceError(f"{self.port}: {exc}") from None
+            why = os.strerror(exc.errno) if getattr(exc, "errno", None) else str(exc)
+            raise DeviceError(
+                f"reading {self.port} failed ({why}); check the cable and that no other "
+                "program uses the port"
+            ) from None
         nch = self.n_channels or self._parser.n_channels
         if not nch:
             self._close_port()
@@ -867,7 +874,8 @@ class SerialTextSource(_SerialPortSource):
         if self.n_channels and self._parser.n_channels and self._parser.n_channels != nch:
             self._close_port()
             raise DeviceError(
-                f"{self.port}: lines have {self._parser.n_channels} values, channels={nch}"
+                f"the lines on {self.port} carry {self._parser.n_channels} values but the URL "
+                f"says channels={nch}; correct ?channels= or leave it out"
             )
         self._parser.n_channels = nch
         if self.rate_hz is None:
@@ -885,7 +893,10 @@ class SerialTextSource(_SerialPortSource):
         self.connected = True
         roles = list(self.roles or (["wheel", "body"] + ["other"] * nch)[:nch])
         if len(roles) != nch:
-            raise DeviceError(f"{self.url}: {len(roles)} roles given for {nch} channels")
+            raise DeviceError(
+                f"{self.url}: {len(roles)} roles given for {nch} channels; give one role per "
+                "channel in ?roles="
+            )
         names = self.names or self._parser.header
         self.channels = _channel_specs(
             nch,

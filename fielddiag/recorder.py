@@ -263,13 +263,18 @@ class Recorder:
         for sig in signals:
             self._sig_rings[sig.name] = _Ring(int(self.live_buffer_s * _SIGNAL_BUFFER_HZ), 1)
 
-    def _fail(self, exc: BaseException) -> None:
+    def _fail(self, exc: BaseException, doing: str = "recording") -> None:
         with self._lock:
             if self.error is None:
                 if isinstance(exc, FieldDiagError):
                     self.error = exc
                 else:
-                    self.error = DeviceError(f"recording stopped: {type(exc).__name__}: {exc}")
+                    why = str(exc) or "no reason given"
+                    self.error = DeviceError(
+                        f"the recording stopped: {doing} failed ({why}); everything "
+                        f"recorded before is in {self.path}. Check the device and start a "
+                        "new recording"
+                    )
             self._state = "failed"
         self._stop.set()
 
@@ -278,13 +283,13 @@ class Recorder:
             try:
                 block = src.read(self.read_timeout_s)
             except Exception as exc:  # a device error ends the recording, with the reason
-                self._fail(exc)
+                self._fail(exc, f"reading {src.url}")
                 return
             if block is not None and not block.is_empty():
                 try:
                     self._store(src, block, i)
                 except Exception as exc:  # SessionError: disk full, file gone...
-                    self._fail(exc)
+                    self._fail(exc, f"storing what {src.url} sent")
                     return
             if src.finished:
                 with self._lock:
