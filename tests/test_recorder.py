@@ -116,7 +116,9 @@ def test_faulty_daq_and_can_into_one_session_counted_exactly(tmp_path):
         assert 0.5 < t_live[-1] - t_live[0] <= 1.0
         assert "DAQ" in format_status(st) and st["state"] == "recording"
         speeds = rec.latest_signals(2.0)["vehicle_speed"][1]
-        assert np.all((speeds > 15.0) & (speeds < 25.0))
+        # the ECU ramps 15 -> 25 m/s over 10 s and then holds (a slow `info` above on a
+        # loaded machine can take us past 10 s)
+        assert np.all((speeds > 15.0) & (speeds <= 25.0))
         final = rec.stop()
     finally:
         ecu.stop()
