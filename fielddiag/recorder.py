@@ -1,8 +1,8 @@
 """Run data sources concurrently into one session; live buffer and counters for the UI.
 
 :class:`Recorder` opens the sources (the DAQ handshake tells the channels), creates the
-session (:class:`fielddiag.session.SessionWriter`, SWMR, flushed every 0.5 s so a killed
-recorder loses at most the last second and the file can be read while it grows), and
+session (:class:`fielddiag.session.SessionWriter`, SWMR, flushed every 0.4 s so a killed
+recorder loses at most the last half second and the file can be read while it grows), and
 runs every source in its own thread. What the sources read goes to the session as it
 arrives: raw DAQ counts bit for bit with their session times, gaps with the samples
 lost, decoded CAN signals in SI units, every raw CAN frame, events. Counters (frames
@@ -103,7 +103,9 @@ class Recorder:
         (its chunk cache drops failed writes), so the recorder stops before that point.
         Default: three HDF5 chunk allocations plus 10 s of data plus 1 MB.
     flush_interval_s : float
-        Longest time data waits in memory before it is on disk.
+        Longest time data waits in memory before it is on disk. A killed recorder loses
+        up to this plus the time a block waits before it is appended (20-50 ms): 0.4 s
+        keeps that within half a second.
 
     Attributes
     ----------
@@ -127,7 +129,7 @@ class Recorder:
         metadata: SessionMetadata | None = None,
         overwrite: bool = False,
         live_buffer_s: float = 60.0,
-        flush_interval_s: float = 0.5,
+        flush_interval_s: float = 0.4,
         read_timeout_s: float = 0.1,
         disk_reserve_bytes: int | None = None,
     ) -> None:
