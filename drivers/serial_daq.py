@@ -286,6 +286,10 @@ class _SerialPortSource(Source):
     def _process(self, data: bytes, t_arrival_s: float) -> Block | None:
         raise NotImplementedError
 
+    def _has_pending(self) -> bool:
+        """True when input received earlier still waits to be processed (subclasses)."""
+        return False
+
     def read(self, timeout_s: float = 0.1) -> Block | None:
         if self.clock is None:
             raise RuntimeError("start() the source before read()")
@@ -304,8 +308,10 @@ class _SerialPortSource(Source):
                     self._kick()
                 except _PORT_ERRORS as exc:
                     return self._on_disconnect(exc)
-            return None
-        self._last_data_mono = time.monotonic()
+            if not self._has_pending():
+                return None
+        else:
+            self._last_data_mono = time.monotonic()
         return self._process(data, t_arrival)
 
     def close(self) -> None:
@@ -616,6 +622,9 @@ class SerialDAQSource(_SerialPortSource):
         self._last_read = time.monotonic()
         return bytes(got)
 
+    def _has_pending(self) -> bool:
+        return bool(self._backlog or self._held)
+
     # ------------------------------------------------------------------ frames -> block
     def _process(self, data: bytes, t_arrival_s: float) -> Block | None:
         """Turn the frames parsed by :meth:`_read_available` into a block (``data`` is
@@ -644,7 +653,8 @@ class SerialDAQSource(_SerialPortSource):
                 self._sync.observe(f.t_us / 1e6 + f.n_samples / rate, t)
             else:
                 self._held.extend(frames)
-                if not self._sync.settled:
+                waited = self._held and t_arrival_s - self._held[0][1] >= self._sync.settle_s
+                if not (self._sync.settled or waited):
                     return None
                 frames = []
             frames, self._held = self._held + frames, []
