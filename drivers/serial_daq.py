@@ -619,6 +619,11 @@ class SerialDAQSource(_SerialPortSource):
             t = self.clock.now()
             got += data
             self._backlog.extend((f, t) for f in self._parser.feed(data))
+            due = end
+            if self._backlog:
+                due = min(end, self._last_block_mono + self.min_block_interval_s)
+            if time.monotonic() >= due:  # a stream that never pauses still gets handed over
+                break
         self._last_read = time.monotonic()
         return bytes(got)
 
