@@ -81,6 +81,14 @@ class DeviceClockFit:
         Drifts beyond this are not believed (quartz clocks are within +-100 ppm).
     min_drift_span_s : float
         Device time the points must span before the drift is reported (:attr:`drift_known`).
+
+    Notes
+    -----
+    While the points span less than ``young_span_s`` (30 s) the slope is still uncertain,
+    so the line is put under the points of the last ``recent_s`` (2 s) instead of under
+    the whole history: a slope error then costs its product with 2 s, not with half the
+    history. A fitted slope beyond ``max_drift_ppm`` means the offset stepped; only the
+    points of the last ``step_memory_s`` (2 s) are kept.
     """
 
     def __init__(
