@@ -561,7 +561,7 @@ class VirtualDAQ:
         # bytes that may go now: up to the first frame still held back (tx_jitter_s)
         ready = (hold[0][0] if hold else self._tx_base + len(self._tx)) - self._tx_base
         while ready > 0:
-            k = self.link.write(memoryview(self._tx)[:ready])
+            k = self.link.write(self._tx[:ready])
             if k <= 0:
                 break
             del self._tx[:k]
