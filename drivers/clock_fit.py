@@ -74,11 +74,14 @@ class DeviceClockFit:
     slew_time_s : float
         Time in which a difference between the applied mapping and the fit is closed.
     max_slew : float
-        Largest rate correction of the applied mapping (2e-3: 2 ms per second).
+        Largest rate correction of the applied mapping (1.5e-3: 1.5 ms per second). With
+        ``max_drift_ppm`` it bounds how far the sample spacing strays from the device's:
+        2e-3 at most.
     step_threshold_s : float
         A difference larger than this is stepped, not slewed.
     max_drift_ppm : float
-        Drifts beyond this are not believed (quartz clocks are within +-100 ppm).
+        Drifts beyond this are not believed (quartz clocks are within +-100 ppm, ceramic
+        resonators a few hundred).
     min_drift_span_s : float
         Device time the points must span before the drift is reported (:attr:`drift_known`).
 
@@ -98,9 +101,9 @@ class DeviceClockFit:
         history_s: float = 300.0,
         settle_s: float = 0.25,
         slew_time_s: float = 1.0,
-        max_slew: float = 2e-3,
+        max_slew: float = 1.5e-3,
         step_threshold_s: float = 0.05,
-        max_drift_ppm: float = 1000.0,
+        max_drift_ppm: float = 500.0,
         min_drift_span_s: float = 10.0,
     ) -> None:
         self.window_s = float(window_s)
