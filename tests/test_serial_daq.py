@@ -380,3 +380,30 @@ def test_pty_link_path_comes_back_after_unplug():
         assert first.startswith("/dev/pts/")
     finally:
         link.close()
+
+
+def test_sequence_wrap_counts_the_frame_lost_across_it():
+    """The sequence number wraps at 2**32: a frame missing right at the wrap is one frame
+    lost, and the time stamps run on without a jump (fed to the driver without a port)."""
+    from drivers.protocol import ChannelInfo, DeviceInfo, FrameParser, encode_data
+
+    rate, n = 1000.0, 10
+    src = SerialDAQSource("serial://test", "test")
+    src.info = DeviceInfo("T", "test", rate, 2, n, (ChannelInfo(100.0), ChannelInfo(100.0)))
+    src.clock = SessionClock()
+    parser = FrameParser()
+    seqs = [(2**32 - 30 + k) % 2**32 for k in range(60) if k != 30]  # seq 0 never arrives
+    blocks = []
+    for q in seqs:
+        i = (q - (2**32 - 30)) % 2**32
+        frame = encode_data(q, 5_000_000 + i * 10_000, np.full((n, 2), i), 2)
+        src._backlog.extend((f, 0.001 + i * 0.01) for f in parser.feed(frame))
+        b = src._process(b"", 0.001 + i * 0.01)
+        if b is not None:
+            blocks.append(b)
+    t = np.concatenate([b.time_s for b in blocks])
+    gaps = [g for b in blocks for g in b.gaps]
+    assert src.counters()["frames_lost"] == 1 and src.counters()["frames_received"] == 59
+    assert [g.samples_lost for g in gaps] == [n]
+    assert np.all(np.abs(np.diff(t) * rate - 1.0)[np.diff(t) < 2 / rate] < 2e-3)
+    assert gaps[0].end_s - gaps[0].start_s == pytest.approx(n / rate, abs=1e-4)
