@@ -11,11 +11,17 @@ What the driver does with a real, imperfect link:
   counted; sequence gaps become gaps in the session with the exact number of samples
   lost (frames lost x samples per frame);
 * if the port disappears (cable pulled) the source keeps going: it closes the port,
-  retries opening the same path with exponential back-off, re-checks that the same device
-  came back, sends START again, and records the outage as a gap (exact when the device
-  kept counting frames while the host was away);
-* device time stamps are mapped to session time with :class:`drivers.base.ClockSync`,
-  which also estimates the device clock drift in ppm.
+  watches for the same path to come back (every 50 ms; failed opens of a path that is
+  there back off to 1 s), re-checks that the same device came back, sends START again,
+  and records the outage as a gap (exact when the device kept counting frames while the
+  host was away). The port is opened without flushing its input: frames the device sent
+  before the host got there are sequence-numbered and time-stamped, so they are kept;
+* every frame is stamped with the host time it arrived (bytes are read as they come,
+  even though blocks are handed over at most every ``block_ms``), and device time stamps
+  are mapped to session time with :class:`drivers.clock_fit.DeviceClockFit`: a line
+  fitted under the least-delayed arrivals (it also gives the device clock drift in ppm),
+  applied without jumps. The first 0.25 s of a clock epoch are held back until the fit
+  has settled.
 
 Query options of the URL (all optional):
 
@@ -38,6 +44,7 @@ from __future__ import annotations
 
 import glob
 import os
+import select
 import tempfile
 import time
 from typing import Any
@@ -46,7 +53,8 @@ import numpy as np
 import serial
 import serial.tools.list_ports
 
-from drivers.base import Block, ChannelSpec, ClockSync, Event, Gap, Source, parse_source_url
+from drivers.base import Block, ChannelSpec, Event, Gap, Source, parse_source_url
+from drivers.clock_fit import DeviceClockFit
 from drivers.protocol import (
     CMD_INFO,
     CMD_START,
@@ -64,6 +72,31 @@ SEQ_MOD = 1 << 32
 #: Size of the Linux tty receive buffer (N_TTY_BUF_SIZE); "buffer fill" is relative to it.
 TTY_BUFFER_BYTES = 4096
 _PORT_ERRORS = (serial.SerialException, OSError)
+#: How often a vanished port's path is checked for the device coming back.
+RECONNECT_POLL_S = 0.05
+
+
+class _KeepInputSerial(serial.Serial):
+    """pyserial's port, except that opening it keeps the bytes already received.
+
+    pyserial flushes the input queue when it opens a port (POSIX). After a reconnect
+    that queue holds the frames the device sent since it came back, each with its
+    sequence number and time stamp: keeping them is what makes the loss of a pulled
+    cable equal to what the device could not send.
+    """
+
+    _opening = False
+
+    def open(self) -> None:
+        self._opening = True
+        try:
+            super().open()
+        finally:
+            self._opening = False
+
+    def _reset_input_buffer(self) -> None:
+        if not self._opening:
+            super()._reset_input_buffer()
 
 
 def list_ports(include_virtual: bool = True) -> list[dict[str, Any]]:
@@ -124,7 +157,7 @@ class _SerialPortSource(Source):
         reconnect: bool = True,
         handshake_timeout_s: float = 2.0,
         min_block_interval_s: float = 0.02,
-        reconnect_max_interval_s: float = 2.0,
+        reconnect_max_interval_s: float = 1.0,
     ) -> None:
         super().__init__(url)
         self.port = port
@@ -151,10 +184,11 @@ class _SerialPortSource(Source):
     # -------------------------------------------------------------- port primitives
     def _open_port(self) -> serial.Serial:
         try:
-            p = serial.Serial(self.port, self.baudrate, timeout=0.1, write_timeout=1.0)
+            p = _KeepInputSerial(self.port, self.baudrate, timeout=0.1, write_timeout=1.0)
         except _PORT_ERRORS as exc:
+            why = os.strerror(exc.errno) if getattr(exc, "errno", None) else str(exc)
             raise DeviceError(
-                f"cannot open {self.port}: {exc}. Check the cable and the port name "
+                f"cannot open {self.port} ({why}). Check the cable and the port name "
                 "(`fielddiag ports` lists them) and that no other program uses it"
             ) from None
         self._port_timeout = 0.1
@@ -200,13 +234,14 @@ class _SerialPortSource(Source):
         t = self.clock.now() if self.clock else 0.0
         self._down_since_s = t
         self._disconnected_flag = True
-        self._backoff_s = 0.1
-        self._next_attempt = time.monotonic() + self._backoff_s
-        self.last_error = f"{self.port} disconnected ({exc})"
+        self._backoff_s = RECONNECT_POLL_S
+        self._next_attempt = time.monotonic() + RECONNECT_POLL_S
+        self.last_error = f"{self.port} disconnected: waiting for the device to come back"
         self._reset_stream_state()
         if not self.reconnect:
             raise DeviceError(
-                f"{self.port} disconnected ({exc}); add ?reconnect=true to wait for it"
+                f"the DAQ on {self.port} was disconnected; check the cable, or record "
+                "with ?reconnect=true in the DAQ URL to wait for it to come back"
             )
         return Block(events=[Event(t, "DAQ disconnected")])
 
@@ -214,6 +249,10 @@ class _SerialPortSource(Source):
         now = time.monotonic()
         if now < self._next_attempt:
             time.sleep(min(timeout_s, self._next_attempt - now))
+            return None
+        if not os.path.exists(self.port) and os.path.isabs(self.port):
+            # the device node (or link) is gone: look again soon, it costs one stat()
+            self._next_attempt = time.monotonic() + RECONNECT_POLL_S
             return None
         try:
             self._port = self._open_port()
@@ -247,6 +286,10 @@ class _SerialPortSource(Source):
     def _process(self, data: bytes, t_arrival_s: float) -> Block | None:
         raise NotImplementedError
 
+    def _has_pending(self) -> bool:
+        """True when input received earlier still waits to be processed (subclasses)."""
+        return False
+
     def read(self, timeout_s: float = 0.1) -> Block | None:
         if self.clock is None:
             raise RuntimeError("start() the source before read()")
@@ -265,8 +308,10 @@ class _SerialPortSource(Source):
                     self._kick()
                 except _PORT_ERRORS as exc:
                     return self._on_disconnect(exc)
-            return None
-        self._last_data_mono = time.monotonic()
+            if not self._has_pending():
+                return None
+        else:
+            self._last_data_mono = time.monotonic()
         return self._process(data, t_arrival)
 
     def close(self) -> None:
@@ -345,8 +390,12 @@ class SerialDAQSource(_SerialPortSource):
         super().__init__(url, port, **kw)
         self.info: DeviceInfo | None = None
         self._parser = FrameParser()
-        self._sync = ClockSync()
-        self._backlog: list[DataFrame] = []
+        self._sync = DeviceClockFit()
+        # frames parsed but not yet processed, with the session time each arrived
+        self._backlog: list[tuple[DataFrame | DeviceInfo, float]] = []
+        # frames of a new clock epoch held back until the clock fit has settled
+        self._held: list[tuple[DataFrame, float]] = []
+        self._last_block_mono = 0.0
         # counters
         self.frames_received = 0
         self.frames_lost = 0
@@ -391,15 +440,16 @@ class SerialDAQSource(_SerialPortSource):
         while time.monotonic() < deadline:
             data = self._port.read(max(1, self._port.in_waiting))
             if data:
+                t = self.clock.now() if self.clock else 0.0
                 frames = self._parser.feed(data)
                 for k, f in enumerate(frames):
                     if isinstance(f, DeviceInfo):
                         # data frames that came in the same read are kept, not dropped
                         self._backlog.extend(
-                            g for g in frames[k + 1:] if not isinstance(g, DeviceInfo)
+                            (g, t) for g in frames[k + 1:] if not isinstance(g, DeviceInfo)
                         )
                         return f
-                    self._backlog.append(f)
+                    self._backlog.append((f, t))
             if time.monotonic() > next_ask:
                 self._write(CMD_INFO)
                 next_ask = time.monotonic() + 0.5
@@ -426,7 +476,10 @@ class SerialDAQSource(_SerialPortSource):
         n = info.n_channels
         roles = list(self.roles or [c.role for c in info.channels])
         if len(roles) != n:
-            raise DeviceError(f"{self.url}: {len(roles)} roles given for {n} channels")
+            raise DeviceError(
+                f"{self.url}: {len(roles)} roles given for a device with {n} channels; give "
+                "one role per channel in ?roles="
+            )
         self.channels = _channel_specs(
             n,
             roles,
@@ -526,27 +579,96 @@ class SerialDAQSource(_SerialPortSource):
             "device": self.info.to_dict() if self.info else None,
         }
 
+    # ------------------------------------------------------------------ reading
+    def _read_available(self, timeout_s: float) -> bytes:
+        """Read bytes as they arrive and parse them, each frame stamped with its arrival.
+
+        Returns once frames are in hand and ``block_ms`` has passed since the last block
+        (so small frames are handed over in batches), or after ``timeout_s``. The frames
+        wait in the backlog for :meth:`_process`; the bytes are returned only to tell
+        whether anything arrived.
+        """
+        port = self._port
+        assert port is not None
+        got = bytearray()
+        now = time.monotonic()
+        end = now + timeout_s
+        fd = port.fileno() if hasattr(port, "fileno") else None
+        while True:
+            waiting = port.in_waiting
+            self._buffer_fill = max(self._buffer_fill, min(1.0, waiting / TTY_BUFFER_BYTES))
+            if waiting:
+                data = port.read(waiting)
+            else:
+                limit = end
+                if self._backlog:
+                    limit = min(end, self._last_block_mono + self.min_block_interval_s)
+                wait = limit - time.monotonic()
+                if wait <= 0:
+                    break
+                if fd is not None:
+                    ready, _, _ = select.select([fd], [], [], wait)
+                    if not ready:
+                        break
+                    data = port.read(max(1, port.in_waiting))
+                else:  # no file descriptor (Windows): let the port's timeout wait
+                    data = port.read(1)
+                    data += port.read(port.in_waiting) if data else b""
+                if not data:
+                    break
+            t = self.clock.now()
+            got += data
+            self._backlog.extend((f, t) for f in self._parser.feed(data))
+            due = end
+            if self._backlog:
+                due = min(end, self._last_block_mono + self.min_block_interval_s)
+            if time.monotonic() >= due:  # a stream that never pauses still gets handed over
+                break
+        self._last_read = time.monotonic()
+        return bytes(got)
+
+    def _has_pending(self) -> bool:
+        return bool(self._backlog or self._held)
+
     # ------------------------------------------------------------------ frames -> block
     def _process(self, data: bytes, t_arrival_s: float) -> Block | None:
-        frames = self._backlog + [f for f in self._parser.feed(data)]
-        self._backlog = []
-        data_frames = []
-        for f in frames:
+        """Turn the frames parsed by :meth:`_read_available` into a block (``data`` is
+        already parsed)."""
+        items, self._backlog = self._backlog, []
+        frames: list[tuple[DataFrame, float]] = []
+        for f, t in items:
             if isinstance(f, DeviceInfo):
                 continue  # an INFO answer while streaming: nothing new
             if f.n_channels != self.info.n_channels or f.sample_format != self.info.sample_format:
                 self.frames_rejected += 1
+                fmt = FORMAT_NAMES.get(f.sample_format, "an unknown format")
                 self.last_error = (
-                    f"frame with {f.n_channels} channels/format {f.sample_format} does not "
-                    "match the device info; dropped"
+                    f"a frame of {f.n_channels} channels in {fmt} came from a device that "
+                    f"announced {self.info.n_channels} channels in "
+                    f"{FORMAT_NAMES[self.info.sample_format]}; it was dropped"
                 )
                 continue
-            data_frames.append(f)
-        if not data_frames:
+            frames.append((f, t))
+        if self._held or not self._sync.settled:
+            # the start of a clock epoch: hold the frames until the clock fit has settled
+            rate = self.info.sample_rate_hz
+            for f, t in frames:
+                if self._held and f.t_us <= self._held[-1][0].t_us:
+                    break  # time went backwards while holding: process what is held now
+                self._sync.observe(f.t_us / 1e6 + f.n_samples / rate, t)
+            else:
+                self._held.extend(frames)
+                waited = self._held and t_arrival_s - self._held[0][1] >= self._sync.settle_s
+                if not (self._sync.settled or waited):
+                    return None
+                frames = []
+            frames, self._held = self._held + frames, []
+        if not frames:
             return None
-        return self._frames_to_block(data_frames, t_arrival_s)
+        self._last_block_mono = time.monotonic()
+        return self._frames_to_block(frames)
 
-    def _frames_to_block(self, frames: list[DataFrame], t_arrival_s: float) -> Block:
+    def _frames_to_block(self, frames: list[tuple[DataFrame, float]]) -> Block:
         rate = self.info.sample_rate_hz
         out_t: list[np.ndarray] = []
         out_s: list[bytes] = []
@@ -555,7 +677,7 @@ class SerialDAQSource(_SerialPortSource):
         seg: list[DataFrame] = []
         marks: list[tuple[int, int, str]] = []  # (sample index in seg, samples lost, cause)
         n_seg = 0
-        for f in frames:
+        for k, (f, t_arr) in enumerate(frames):
             n = f.n_samples
             t_first = f.t_us / 1e6
             if self._last_seq is not None:
@@ -571,13 +693,21 @@ class SerialDAQSource(_SerialPortSource):
                 elif d == 0 and jump_s > 0:
                     marks.append((n_seg, 0, "device paused"))
                 else:
-                    # Sequence number and device time disagree: the device restarted.
-                    self._emit(seg, marks, t_arrival_s, out_t, out_s, gaps)
-                    seg, marks, n_seg = [], [], 0
+                    # Sequence number and device time disagree: the device restarted. The
+                    # frames of the new clock epoch wait until its clock fit has settled.
+                    self._emit(seg, marks, out_t, out_s, gaps)
                     self._sync.reset()
                     self._epochs += 1
                     self._epoch_gap_pending = True
-                    events.append(Event(t_arrival_s, "DAQ restarted (new clock epoch)"))
+                    self._last_seq = None
+                    events.append(Event(t_arr, "DAQ restarted (its clock began again)"))
+                    self._held = []
+                    for g, tg in frames[k:]:
+                        self._sync.observe(g.t_us / 1e6 + g.n_samples / rate, tg)
+                        self._held.append((g, tg))
+                    seg = []
+                    break
+            self._sync.observe(t_first + n / rate, t_arr)
             self._last_seq, self._last_t_dev_end = f.seq, t_first + n / rate
             if self._disconnected_flag:
                 self._after_reconnect_frames = 10  # losses right after a reconnect: the outage
@@ -589,18 +719,18 @@ class SerialDAQSource(_SerialPortSource):
             self.frames_received += 1
             if self.seq_log is not None:
                 self.seq_log.append(f.seq)
-        self._emit(seg, marks, t_arrival_s, out_t, out_s, gaps)
+        self._emit(seg, marks, out_t, out_s, gaps)
         self._rate_window.append((time.monotonic(), sum(len(t) for t in out_t)))
         samples = np.frombuffer(b"".join(out_s), dtype=self.info.dtype).reshape(
             -1, self.info.n_channels
         )
-        return Block(time_s=np.concatenate(out_t), samples=samples, gaps=gaps, events=events)
+        time_s = np.concatenate(out_t) if out_t else np.zeros(0)
+        return Block(time_s=time_s, samples=samples, gaps=gaps, events=events)
 
     def _emit(
         self,
         seg: list[DataFrame],
         marks: list[tuple[int, int, str]],
-        t_arrival_s: float,
         out_t: list[np.ndarray],
         out_s: list[bytes],
         gaps: list[Gap],
@@ -618,7 +748,7 @@ class SerialDAQSource(_SerialPortSource):
             t_dev = np.concatenate([f.t_us / 1e6 + np.arange(f.n_samples) * period for f in seg])
         t_end = float(t_dev[-1]) + period
         if not self._sync.locked:
-            self._sync.observe(t_end, t_arrival_s)
+            self._sync.steer(float(t_dev[0]))
         time_s = self._sync.map(t_dev)
         prev = self._last_time_s
         if prev is not None and time_s[0] <= prev:
@@ -640,7 +770,7 @@ class SerialDAQSource(_SerialPortSource):
             g = Gap(start, max(float(time_s[k]), start), lost, cause)
             gaps.append(g)
             self.gaps.append(g)
-        self._sync.observe(t_end, t_arrival_s)
+        self._sync.steer(t_end)  # the next samples follow the newest fit, continuously
         self._last_time_s = float(time_s[-1])
         out_t.append(time_s)
         out_s.append(b"".join(f.payload for f in seg))
@@ -684,7 +814,7 @@ class SerialTextSource(_SerialPortSource):
         self.offset = offset
         self.unit = unit
         self._parser = TextLineParser()
-        self._sync = ClockSync()
+        self._sync = DeviceClockFit()
         self._wrap_us = 0
         self._last_t_us: int | None = None
         self._last_time_s: float | None = None
@@ -744,7 +874,11 @@ class SerialTextSource(_SerialPortSource):
                     break
         except _PORT_ERRORS as exc:
             self._close_port()
-            raise DeviceError(f"{self.port}: {exc}") from None
+            why = os.strerror(exc.errno) if getattr(exc, "errno", None) else str(exc)
+            raise DeviceError(
+                f"reading {self.port} failed ({why}); check the cable and that no other "
+                "program uses the port"
+            ) from None
         nch = self.n_channels or self._parser.n_channels
         if not nch:
             self._close_port()
@@ -755,7 +889,8 @@ class SerialTextSource(_SerialPortSource):
         if self.n_channels and self._parser.n_channels and self._parser.n_channels != nch:
             self._close_port()
             raise DeviceError(
-                f"{self.port}: lines have {self._parser.n_channels} values, channels={nch}"
+                f"the lines on {self.port} carry {self._parser.n_channels} values but the URL "
+                f"says channels={nch}; correct ?channels= or leave it out"
             )
         self._parser.n_channels = nch
         if self.rate_hz is None:
@@ -773,7 +908,10 @@ class SerialTextSource(_SerialPortSource):
         self.connected = True
         roles = list(self.roles or (["wheel", "body"] + ["other"] * nch)[:nch])
         if len(roles) != nch:
-            raise DeviceError(f"{self.url}: {len(roles)} roles given for {nch} channels")
+            raise DeviceError(
+                f"{self.url}: {len(roles)} roles given for {nch} channels; give one role per "
+                "channel in ?roles="
+            )
         names = self.names or self._parser.header
         self.channels = _channel_specs(
             nch,
@@ -853,8 +991,9 @@ class SerialTextSource(_SerialPortSource):
             self._sync.reset()
         t_dev = t_us / 1e6
         t_end = float(t_dev[-1])
+        self._sync.observe(t_end, t_arrival_s)
         if not self._sync.locked:
-            self._sync.observe(t_end, t_arrival_s)
+            self._sync.steer(float(t_dev[0]))
         time_s = self._sync.map(t_dev)
         if self._last_time_s is not None and time_s[0] <= self._last_time_s:
             time_s = time_s + (self._last_time_s - time_s[0] + period)
@@ -875,7 +1014,7 @@ class SerialTextSource(_SerialPortSource):
             gaps.append(g)
             self.gaps.append(g)
             self.samples_lost += lost
-        self._sync.observe(t_end, t_arrival_s)
+        self._sync.steer(t_end + period)
         self._last_t_us = int(t_us[-1])
         self._last_time_s = float(time_s[-1])
         self.lines_received += int(t_us.size)

@@ -187,6 +187,27 @@ class PtyLink:
                 return 0
             raise
 
+    def drain_unread(self) -> int:
+        """Take from the pty what the host has not read yet; return how many bytes.
+
+        Called when the cable is pulled: these bytes were on their way and are lost with
+        it. Reading them here (the device holds the pty's other end too) tells exactly
+        how many the host will never see.
+        """
+        if self._slave is None:
+            return 0
+        os.set_blocking(self._slave, False)
+        n = 0
+        while True:
+            try:
+                chunk = os.read(self._slave, 1 << 16)
+            except (BlockingIOError, OSError):
+                break
+            if not chunk:
+                break
+            n += len(chunk)
+        return n
+
     def read(self) -> bytes:
         """What the host wrote (non-blocking)."""
         if self.master is None:
@@ -212,16 +233,23 @@ class VirtualDAQStats:
     frames_corrupted: int = 0
     frames_dropped_overflow: int = 0
     frames_dropped_outage: int = 0
-    frames_lost_in_link: int = 0  # queued or partly written when the cable was pulled
+    frames_lost_in_link: int = 0  # queued, or written but not read by the host, at the pull
     garbage_bytes: int = 0
     bytes_written: int = 0
     disconnects: int = 0
     reconnects: int = 0
     stalls: int = 0
     corrupted_seqs: set[int] = field(default_factory=set)
+    #: Every frame the device made but did not deliver (outage, overflow, lost in the link).
+    dropped_seqs: list[int] = field(default_factory=list)
     written_seqs: list[int] = field(default_factory=list)
     written_at: list[float] = field(default_factory=list)  # monotonic time of each write
     disconnect_times: list[float] = field(default_factory=list)
+
+    @property
+    def frames_dropped(self) -> int:
+        """Frames the device made that never reached the host whole."""
+        return self.frames_dropped_outage + self.frames_dropped_overflow + self.frames_lost_in_link
 
 
 class VirtualDAQ:
@@ -252,6 +280,10 @@ class VirtualDAQ:
         Reboot on reconnect (bus-powered device): sequence and clock restart, waits for START.
     clock_drift_ppm : float
         The device clock runs fast by this much relative to the host.
+    tx_jitter_s : float
+        Mean of an exponentially distributed extra delay before each frame is sent (a busy
+        USB bus, a late interrupt); frames stay in order, so a late frame also holds back
+        the ones behind it. 0: a frame is sent as soon as its last sample is acquired.
     tx_buffer_bytes : int
         The device's transmit FIFO; whole frames that do not fit are dropped.
     seed : int
@@ -277,6 +309,7 @@ class VirtualDAQ:
         stall_for_s: float = 1.0,
         power_cycle_on_disconnect: bool = False,
         clock_drift_ppm: float = 0.0,
+        tx_jitter_s: float = 0.0,
         tx_buffer_bytes: int = 65536,
         loop: bool = True,
         seed: int = 0,
@@ -310,6 +343,7 @@ class VirtualDAQ:
         self.stall_for_s = float(stall_for_s)
         self.power_cycle_on_disconnect = power_cycle_on_disconnect
         self.clock_drift_ppm = float(clock_drift_ppm)
+        self.tx_jitter_s = float(tx_jitter_s)
         self.tx_buffer_bytes = int(tx_buffer_bytes)
         self.loop = loop
         self._rng = np.random.default_rng(seed)
@@ -319,6 +353,8 @@ class VirtualDAQ:
         self._tx = bytearray()
         self._tx_frames: deque[tuple[int, int]] = deque()  # (end offset in stream, seq)
         self._tx_base = 0  # stream offset of _tx[0]
+        self._tx_hold: deque[tuple[int, float]] = deque()  # (start offset, send not before)
+        self._sent: deque[tuple[int, int]] = deque()  # written frames (end offset, seq)
         self._cmd = bytearray()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -440,6 +476,8 @@ class VirtualDAQ:
             if self.streaming:
                 t_next = self._run_start_dev_s + (self._run_frames + 1) * period_frame
                 wait = self._mono_of_device(t_next) - time.monotonic()
+            if self._tx_hold:
+                wait = min(wait, self._tx_hold[0][1] - time.monotonic())
             time.sleep(min(max(wait, 0.0002), 0.005))
 
     def _handle_commands(self, data: bytes) -> None:
@@ -481,8 +519,10 @@ class VirtualDAQ:
             self.stats.frames_made += 1
             if not self.link.up:
                 self.stats.frames_dropped_outage += 1
+                self.stats.dropped_seqs.append(self.seq)
             elif len(self._tx) + len(frame) > self.tx_buffer_bytes:
                 self.stats.frames_dropped_overflow += 1
+                self.stats.dropped_seqs.append(self.seq)
             else:
                 if self.corrupt_rate > 0:
                     frame = self._corrupt(frame)
@@ -505,30 +545,52 @@ class VirtualDAQ:
     def _enqueue(self, data: bytes, seq: int | None) -> None:
         if not self.link.up:
             return
+        if seq is not None and self.tx_jitter_s > 0:
+            delay = float(self._rng.exponential(self.tx_jitter_s))
+            self._tx_hold.append((self._tx_base + len(self._tx), time.monotonic() + delay))
         self._tx += data
         if seq is not None:
             self._tx_frames.append((self._tx_base + len(self._tx), seq))
 
     def _transmit(self) -> None:
-        while self._tx:
-            k = self.link.write(self._tx)
+        now = time.monotonic()
+        hold = self._tx_hold
+        while hold and hold[0][1] <= now:
+            hold.popleft()
+        # bytes that may go now: up to the first frame still held back (tx_jitter_s)
+        ready = (hold[0][0] if hold else self._tx_base + len(self._tx)) - self._tx_base
+        while ready > 0:
+            k = self.link.write(self._tx[:ready])
             if k <= 0:
                 break
             del self._tx[:k]
             self._tx_base += k
+            ready -= k
             self.stats.bytes_written += k
-        now = time.monotonic()
         while self._tx_frames and self._tx_frames[0][0] <= self._tx_base:
-            _, seq = self._tx_frames.popleft()
+            end, seq = self._tx_frames.popleft()
+            self._sent.append((end, seq))
             self.stats.frames_written += 1
             self.stats.written_seqs.append(seq)
             self.stats.written_at.append(now)
+        # a pty holds well under 1 MB: older frames have certainly been read
+        while self._sent and self._sent[0][0] < self._tx_base - (1 << 20):
+            self._sent.popleft()
 
     def _pull_cable(self) -> None:
+        """The cable comes out: what is queued, and what the host has not read, is lost."""
         self.stats.disconnects += 1
         self.stats.disconnect_times.append(time.monotonic())
-        self.stats.frames_lost_in_link += len(self._tx_frames)
+        time.sleep(0.001)  # let the bytes written last reach the pty's input queue
+        unread = self.link.drain_unread()
+        first_unread = self._tx_base - unread  # stream offset of the first byte not read
+        lost = [seq for end, seq in self._sent if end > first_unread]
+        lost += [seq for _, seq in self._tx_frames]
+        self.stats.frames_lost_in_link += len(lost)
+        self.stats.dropped_seqs.extend(lost)
+        self._sent.clear()
         self._tx_frames.clear()
+        self._tx_hold.clear()
         self._tx_base += len(self._tx)
         self._tx.clear()
         self._cmd.clear()

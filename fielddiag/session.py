@@ -418,6 +418,11 @@ class SessionWriter:
             self._counters.update({k: int(v) for k, v in counters.items()})
             self._counters_dirty = True
 
+    def same_flush(self) -> threading.RLock:
+        """``with writer.same_flush():`` what is appended and set inside reaches the file in
+        one flush, so a reader (or the file of a killed writer) never sees part of it."""
+        return self._lock
+
     @property
     def counters(self) -> dict[str, int]:
         with self._lock:

@@ -116,7 +116,9 @@ def test_faulty_daq_and_can_into_one_session_counted_exactly(tmp_path):
         assert 0.5 < t_live[-1] - t_live[0] <= 1.0
         assert "DAQ" in format_status(st) and st["state"] == "recording"
         speeds = rec.latest_signals(2.0)["vehicle_speed"][1]
-        assert np.all((speeds > 15.0) & (speeds < 25.0))
+        # the ECU ramps 15 -> 25 m/s over 10 s and then holds (a slow `info` above on a
+        # loaded machine can take us past 10 s)
+        assert np.all((speeds > 15.0) & (speeds <= 25.0))
         final = rec.stop()
     finally:
         ecu.stop()
@@ -190,25 +192,44 @@ def _start_record_cli(daq: VirtualDAQ, path: Path) -> subprocess.Popen:
     raise AssertionError("recorder did not start")
 
 
-def test_sigkill_loses_at_most_the_last_second(tmp_path):
-    path = tmp_path / "killed.h5"
-    with VirtualDAQ(noise_signals(40000, 3), sample_rate_hz=1000.0) as daq:
-        proc = _start_record_cli(daq, path)
-        time.sleep(2.5)
-        killed_at = time.time()
-        proc.send_signal(signal.SIGKILL)
-        proc.wait(10)
-    assert proc.returncode == -signal.SIGKILL
-    with SessionReader(path) as s:
-        assert not s.closed_cleanly
-        raw = _raw(s)
-        lost_s = (killed_at - s.metadata.t0_unix_s) - s.end_s
-        assert lost_s < 1.0
-        s0 = _seq0(daq, raw[0])
-        n = daq.samples_per_frame
-        k = len(raw) // n
-        assert len(raw) == k * n and k > 100
-        assert np.array_equal(raw, np.concatenate([daq.truth(s0 + i) for i in range(k)]))
+def test_sigkill_keeps_counters_consistent_and_loses_half_a_second_at_most(tmp_path):
+    """SIGKILL of `fielddiag record` at a random instant, twice, on a faulty link.
+
+    The file keeps every sample up to the last flush (0.4 s apart) bit for bit, and its
+    counters count exactly the frames, gaps and samples lost it holds."""
+    rng = np.random.default_rng(7)
+    for k in range(2):
+        path = tmp_path / f"killed{k}.h5"
+        with VirtualDAQ(
+            noise_signals(40000, 3), sample_rate_hz=1000.0, corrupt_rate=2e-4, seed=k
+        ) as daq:
+            proc = _start_record_cli(daq, path)
+            time.sleep(1.0 + rng.uniform(0.0, 1.0))
+            killed_at = time.time()
+            proc.send_signal(signal.SIGKILL)
+            proc.wait(10)
+        assert proc.returncode == -signal.SIGKILL
+        with SessionReader(path) as s:
+            assert not s.closed_cleanly
+            raw = _raw(s)
+            # flushes start every 0.4 s; what was flushed lags arrival by a block (20 ms)
+            lost_s = (killed_at - s.metadata.t0_unix_s) - s.end_s
+            assert lost_s <= 0.5
+            n = daq.samples_per_frame
+            c = s.counters
+            lost = sum(g.samples_lost for g in s.gaps)
+            assert c["frames_received"] * n == len(raw) > 500
+            assert c["samples_lost"] == lost == c["frames_lost"] * n
+            # every stored frame is one the device sent, bit for bit, in order; the frames
+            # skipped between them are exactly those counted lost
+            q = _seq0(daq, raw[0])
+            skipped = 0
+            for frame in raw.reshape(-1, n, raw.shape[1]):
+                while not np.array_equal(daq.truth(q), frame):
+                    q, skipped = q + 1, skipped + 1
+                    assert skipped <= c["frames_lost"], "a stored frame the device never sent"
+                q += 1
+            assert skipped == c["frames_lost"]
 
 
 def test_ctrl_c_stops_cleanly(tmp_path):

@@ -1,7 +1,7 @@
 """Serial DAQ driver end to end over a real pseudo-terminal, against the virtual DAQ.
 
-Streaming tests run a few seconds each; the longest (clock drift) is marked ``slow`` in
-its name and takes about 12 s.
+Streaming tests run a few seconds each; the longest (timestamps against a skewed,
+jittery device clock) takes 20 s.
 """
 
 from __future__ import annotations
@@ -15,8 +15,9 @@ import pytest
 from _daq_helpers import collect, expected_samples, missing_seqs, noise_signals
 
 from drivers import open_source, parse_source_url, source_class
-from drivers.base import ClockSync, SessionClock
+from drivers.base import SessionClock
 from drivers.can_vehicle import CanLogSource
+from drivers.clock_fit import DeviceClockFit
 from drivers.serial_daq import SerialDAQSource, SerialTextSource, list_ports
 from drivers.virtual import PtyLink, VirtualDAQ
 from fielddiag.errors import DeviceError
@@ -64,7 +65,8 @@ def test_clean_stream_is_stored_bit_for_bit():
     assert got.samples.dtype == np.int32
     assert np.array_equal(got.samples, expected_samples(daq, seqs))
     t = got.time_s
-    # device-timed samples: spacing is the sample period up to the clock slew (<= 2e-3)
+    # device-timed samples: spacing is the sample period up to the fitted drift and the
+    # slew of the clock mapping (<= 500 ppm + 1.5e-3)
     assert np.all(np.abs(np.diff(t) * rate - 1.0) < 2.5e-3)
     assert got.gaps == [] and src.counters()["frames_lost"] == 0
     assert src.counters()["crc_errors"] == 0 and src.counters()["bytes_discarded"] == 0
@@ -122,7 +124,7 @@ def test_corruption_garbage_and_pulled_cable_counted_exactly():
     assert outage and max(g.samples_lost for g in outage) >= 2.0 * rate
     for g in got.gaps:
         # device time of the missing samples, seen through the clock mapping whose rate
-        # is 1 +- 2e-3 while it slews the offset in
+        # is 1 +- 2e-3 (fitted drift + slew) while it slews the offset in
         dur = g.samples_lost / rate
         assert g.end_s - g.start_s == pytest.approx(dur, abs=1e-3 + 2.5e-3 * dur)
     labels = [e.label for e in got.events]
@@ -180,52 +182,110 @@ def test_stall_loses_nothing_and_keeps_device_timing():
     assert np.all(np.abs(np.diff(got.time_s) * rate - 1.0) < 2.5e-3)
 
 
-def test_slow_clock_drift_is_estimated():
-    ppm = 400.0
-    daq = VirtualDAQ(noise_signals(20000, 2), sample_rate_hz=500.0, clock_drift_ppm=ppm)
+def test_pulled_cable_loses_exactly_what_the_device_dropped():
+    """2 s without cable: the frames lost are the device's own count, no more.
+
+    The device counts what it could not send: frames made while the cable was out, those
+    still queued when it was pulled, and those the host had not read from the pty yet.
+    Frames it sent after coming back, before the host reopened the port, are kept."""
+    rate, outage_s = 1000.0, 2.0
+    daq = VirtualDAQ(
+        noise_signals(40000, 2), sample_rate_hz=rate, disconnect_at_s=1.0,
+        disconnect_for_s=outage_s,
+    ).start()
+    clock = SessionClock()
+    try:
+        src = _open(daq)
+        got = collect(src, 4.5, clock)
+        src.close()
+    finally:
+        daq.stop()
+    seqs, st, n = src.seq_log, daq.stats, daq.samples_per_frame
+    dropped = sorted(q for q in st.dropped_seqs if seqs[0] <= q <= seqs[-1])
+    assert missing_seqs(seqs) == dropped
+    assert src.counters()["frames_lost"] == len(dropped) == st.frames_dropped
+    assert len(dropped) >= outage_s * rate / n  # the outage itself: 200 frames
+    assert np.array_equal(got.samples, expected_samples(daq, seqs))
+    (gap,) = got.gaps
+    assert gap.cause == "disconnected" and gap.samples_lost == len(dropped) * n
+    # the port is watched every 50 ms: reopened within 0.3 s of the device's return
+    back = st.disconnect_times[0] + outage_s - clock.t0_monotonic_s
+    reconnected = next(e.time_s for e in got.events if e.label.startswith("DAQ reconnected"))
+    assert 0.0 < reconnected - back < 0.3
+
+
+def test_timestamps_follow_the_device_clock_under_skew_and_jitter():
+    """A device clock 300 ppm slow, frames sent 0..10+ ms late (exponential, mean 2 ms).
+
+    The error of a time stamp is its distance from the host time at which the device
+    acquired the sample. It has a constant part no host can see, the least delay of the
+    path (pty, scheduler: 0.1-0.6 ms here, depending on the machine's load), and the part
+    the clock fit is responsible for: how far the stamps stray from the device clock. That
+    part stays under 1 ms from the first sample stored."""
+    ppm, rate = -300.0, 500.0
+    daq = VirtualDAQ(
+        noise_signals(20000, 2), sample_rate_hz=rate, clock_drift_ppm=ppm, tx_jitter_s=0.002,
+        seed=4,
+    )
     clock = SessionClock()
     with daq:
         src = _open(daq)
-        got = collect(src, 12.0, clock)
+        got = collect(src, 20.0, clock)
         src.close()
-    est = src.status()["drift_ppm"]
-    # 10 s of windows with ~0.1 ms arrival jitter: tens of ppm at worst
-    assert est == pytest.approx(ppm, abs=80.0)
-    # session times are the host times at which the samples were acquired: the device's
-    # 500 Hz are 500 * (1 + 400e-6) Hz on the host clock
     n = daq.samples_per_frame
+    host_rate = rate * (1 + ppm * 1e-6)  # the device's 500 Hz seen on the host clock
     true = (
-        np.concatenate(
-            [daq.acquired_at(q) + np.arange(n) / (500.0 * (1 + ppm * 1e-6)) for q in src.seq_log]
-        )
+        np.concatenate([daq.acquired_at(q) + np.arange(n) / host_rate for q in src.seq_log])
         - clock.t0_monotonic_s
     )
     err = got.time_s - true
-    last = slice(-1000, None)  # the last 2 s, after the offset has been slewed in
-    assert np.all(err[last] >= -0.5e-3)  # a sample is never stamped before it existed
-    assert np.max(err[last]) < 5e-3  # least transmission delay + residual slew
-    slope = np.polyfit(true[last], got.time_s[last], 1)[0]
-    assert slope == pytest.approx(1.0, abs=2.5e-3)  # slewing changes the rate by <= 2e-3
+    assert np.ptp(err) < 1e-3, (err.min(), err.max())  # following the device clock
+    # never stamped before it existed; the least delay of a loaded machine included,
+    # never more than 1.5 ms late
+    assert -0.2e-3 < err.min() and err.max() < 1.5e-3, (err.min(), err.max())
+    assert src.status()["drift_ppm"] == pytest.approx(ppm, abs=40.0)
+    # no jumps: the mapping slews by <= 1.5e-3 around the device's rate
+    assert np.all(np.abs(np.diff(got.time_s) * host_rate - 1.0) < 2.5e-3)
 
 
-def test_clock_sync_on_synthetic_latencies():
+def test_clock_fit_on_synthetic_latencies():
     rng = np.random.default_rng(3)
     drift_ppm, offset = -250.0, 123.456
-    sync = ClockSync()
+    fit = DeviceClockFit()
     t_dev = np.arange(0.0, 120.0, 0.02)
     t_true = offset + t_dev / (1 + drift_ppm * 1e-6)  # host time when each instant happened
     arrival = t_true + 0.0003 + rng.exponential(0.004, t_dev.size)  # latency, heavy tail
     mapped = []
     for d, h in zip(t_dev, arrival, strict=True):
-        if not sync.locked:
-            sync.observe(d, h)
-        mapped.append(float(sync.map(d)))
-        sync.observe(d, h)
+        fit.observe(d, h)
+        if fit.settled:
+            if not fit.locked:
+                fit.steer(d)
+            mapped.append(float(fit.map(d)))
+            fit.steer(d)
     mapped = np.array(mapped)
-    assert sync.drift_ppm == pytest.approx(drift_ppm, abs=5.0)
+    assert fit.drift_ppm == pytest.approx(drift_ppm, abs=5.0)
     assert np.all(np.diff(mapped) > 0)
-    err = mapped - t_true
-    assert np.max(np.abs(err[t_dev > 60.0])) < 1.5e-3  # min latency 0.3 ms + fit error
+    err = mapped - t_true[-len(mapped):]
+    assert np.max(np.abs(err)) < 1.5e-3  # min latency 0.3 ms + fit error, from the start
+    assert np.max(np.abs(err[-3000:])) < 0.5e-3  # the last minute
+
+
+def test_clock_fit_ignores_bursts_and_survives_a_clock_step():
+    """A backlog arriving at once (after a stall) does not tilt the fit; a device clock set
+    forward by 5 ms is followed within seconds."""
+    fit = DeviceClockFit()
+    d = np.round(np.arange(0.0, 30.0, 0.01), 2)
+    h = 10.0 + d + 0.0002
+    h[(d >= 5.0) & (d < 6.5)] = 6.5 + 10.0 + 0.0002  # a 1.5 s stall, then a burst
+    h[d >= 15.0] -= 0.005  # the device clock jumps 5 ms ahead
+    for di, hi in zip(d, h, strict=True):
+        fit.observe(di, hi)
+        if di in (4.99, 6.7, 14.99):  # just before the stall, after it, before the step
+            assert fit.fitted(di) - (10.0 + di) == pytest.approx(0.0002, abs=2e-5)
+            assert abs(fit.drift_ppm) < 20.0
+    assert fit.fitted(d[-1]) - h[-1] == pytest.approx(0.0, abs=2e-5)
+    assert abs(fit.drift_ppm) < 20.0
 
 
 # ------------------------------------------------------------------ handshake errors
@@ -280,7 +340,7 @@ def test_text_mode_values_gaps_and_micros_wrap():
         f"{t},{a:.4f},{b:.4f}\n".encode() for t, (a, b) in zip(t_us, vals, strict=True)
     ]
     lines[300] = b"garbage line\n"  # sample 299 damaged
-    del lines[451]  # sample 450 never sent
+    lines[451] = b""  # sample 450 never sent (its time slot passes in silence)
     link = PtyLink("ttyTXT0", "test")
     stop = threading.Event()
     th = threading.Thread(target=_text_streamer, args=(link, stop, lines, rate, 0.3), daemon=True)
@@ -320,3 +380,30 @@ def test_pty_link_path_comes_back_after_unplug():
         assert first.startswith("/dev/pts/")
     finally:
         link.close()
+
+
+def test_sequence_wrap_counts_the_frame_lost_across_it():
+    """The sequence number wraps at 2**32: a frame missing right at the wrap is one frame
+    lost, and the time stamps run on without a jump (fed to the driver without a port)."""
+    from drivers.protocol import ChannelInfo, DeviceInfo, FrameParser, encode_data
+
+    rate, n = 1000.0, 10
+    src = SerialDAQSource("serial://test", "test")
+    src.info = DeviceInfo("T", "test", rate, 2, n, (ChannelInfo(100.0), ChannelInfo(100.0)))
+    src.clock = SessionClock()
+    parser = FrameParser()
+    seqs = [(2**32 - 30 + k) % 2**32 for k in range(60) if k != 30]  # seq 0 never arrives
+    blocks = []
+    for q in seqs:
+        i = (q - (2**32 - 30)) % 2**32
+        frame = encode_data(q, 5_000_000 + i * 10_000, np.full((n, 2), i), 2)
+        src._backlog.extend((f, 0.001 + i * 0.01) for f in parser.feed(frame))
+        b = src._process(b"", 0.001 + i * 0.01)
+        if b is not None:
+            blocks.append(b)
+    t = np.concatenate([b.time_s for b in blocks])
+    gaps = [g for b in blocks for g in b.gaps]
+    assert src.counters()["frames_lost"] == 1 and src.counters()["frames_received"] == 59
+    assert [g.samples_lost for g in gaps] == [n]
+    assert np.all(np.abs(np.diff(t) * rate - 1.0)[np.diff(t) < 2 / rate] < 2e-3)
+    assert gaps[0].end_s - gaps[0].start_s == pytest.approx(n / rate, abs=1e-4)
