@@ -231,8 +231,9 @@ def check_pair(
     """
     b, a = before, after
     if _same_file(b.path, a.path):
-        raise PairError(f"{b.path.name} is given as both the before and the after drive; give "
-                        "the drive as the car is, then the drive with the added mass")
+        raise PairError(f"{b.path.name} is given as both the before and the after drive (the "
+                        "same file twice); give the drive as the car is, then the drive with "
+                        "the added mass")
     if b.fingerprint and b.fingerprint == a.fingerprint:
         raise PairError(f"{b.path.name} and {a.path.name} hold the same recording (one is a "
                         "copy of the other); give the drive as the car is, then the drive "
@@ -246,8 +247,8 @@ def check_pair(
         if _norm(vb) and _norm(va) and _norm(vb) != _norm(va):
             raise PairError(
                 f"{b.path.name} and {a.path.name} are of different {what}s ({vb!r} and "
-                f"{va!r}); both drives must be of the same car corner, before and after "
-                "adding the mass")
+                f"{va!r}); give two drives of the same car corner, the first as the car is "
+                "and the second with the added mass")
     recorded_dm = a.added_mass_kg - b.added_mass_kg
     dm = recorded_dm if added_mass_kg is None else float(added_mass_kg)
     if not (math.isfinite(dm) and dm > 0):
