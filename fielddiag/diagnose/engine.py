@@ -462,7 +462,10 @@ class Diagnosis:
             findings.append(
                 {**self.unexplained, "where": {**self._where(), **self.unexplained["where"]}}
             )
-        warnings = [w.to_dict() for w in self.warnings]
+        # drives that do not behave like one corner with the mass added: a competing
+        # hypothesis that a finding (a progressive spring, friction...) explains
+        warnings = [w.to_dict() for w in self.warnings
+                    if not (w.kind == "pair_inconsistent" and findings)]
         if self.blocked and findings:
             withheld = ", ".join(f["effect"] for f in findings)
             warnings.append(
