@@ -28,6 +28,7 @@ class AsymmetricDamping(Effect):
 
     name = "asymmetric_damping"
     diagnosable = True
+    diagnosis_rank = 40
     description = "asymmetric damper"
     params = (
         ParamSpec("compression_damping_ns_per_m", "N s/m", 0.0, INF, 1.2e3, True,

@@ -166,6 +166,8 @@ class Effect:
         names or the simulator adds.
     diagnosable : bool
         Tried by default as a candidate by the diagnosis.
+    diagnosis_rank : int
+        Order among the diagnosis's candidates (lower first; ties by name).
     n_states : int
         Internal states (0 for a memoryless force law).
     description : str
@@ -199,6 +201,7 @@ class Effect:
     linear_in_params: ClassVar[bool] = True
     linear: ClassVar[bool] = False
     diagnosable: ClassVar[bool] = False
+    diagnosis_rank: ClassVar[int] = 100
     n_states: ClassVar[int] = 0
     description: ClassVar[str] = ""
     kernel: ClassVar[Any]
@@ -555,5 +558,6 @@ def make_effect(name: str, **params: Any) -> Effect:
 
 
 def diagnosis_effects() -> tuple[str, ...]:
-    """Names of the effects the diagnosis tries by default, in registration order."""
-    return tuple(n for n, c in EFFECTS.items() if c.diagnosable and not c.linear)
+    """Names of the effects the diagnosis tries by default, by ``diagnosis_rank``."""
+    found = [(c.diagnosis_rank, n) for n, c in EFFECTS.items() if c.diagnosable and not c.linear]
+    return tuple(n for _, n in sorted(found))

@@ -50,6 +50,7 @@ class BumpStop(Effect):
 
     name = "bump_stop"
     diagnosable = True
+    diagnosis_rank = 30
     description = "bump stop"
     params = (
         ParamSpec("gap_m", "m", 0.0, INF, 0.06, False, "bump-stop gap",

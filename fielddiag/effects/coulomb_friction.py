@@ -41,7 +41,8 @@ class CoulombFriction(Effect):
 
     name = "coulomb_friction"
     diagnosable = True
-    description = "dry friction in the strut"
+    diagnosis_rank = 10
+    description = "dry friction"
     params = (
         ParamSpec("friction_force_n", "N", 0.0, INF, 50.0, True, "friction",
                   "drive slowly over small ripples (small, slow suspension strokes)",

@@ -23,6 +23,7 @@ class CubicStiffness(Effect):
 
     name = "cubic_stiffness"
     diagnosable = True
+    diagnosis_rank = 20
     description = "progressive spring"
     params = (
         ParamSpec("cubic_stiffness_n_per_m3", "N/m^3", -INF, INF, 1e6, True,

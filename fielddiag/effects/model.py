@@ -202,8 +202,8 @@ class ForceModel:
 
         A template is a plain function (no decorator) that calls the global
         ``model_force(r, rdot, x2, theta, consts, dtheta)``; see
-        :func:`fielddiag.effects.compose.compile_templates`. Returns a namespace of the compiled functions, cached
-        in memory and on disk per combination of term classes.
+        :func:`fielddiag.effects.compose.compile_templates`. Returns a namespace of the
+        compiled functions, cached in memory and on disk per combination of effect classes.
         """
         return compile_templates(tuple(type(t) for t in self.terms), module_name,
                                  tuple(names), error_model)
@@ -262,8 +262,8 @@ class ForceModel:
                                           np.asarray(x2, float))
         n = r.size
         z = np.zeros((n, self.n_states)) if states is None else np.asarray(states, float)
-        z = np.ascontiguousarray(np.broadcast_to(z.reshape(-1, self.n_states) if z.size else z,
-                                                 (n, self.n_states)))
+        z = np.array(np.broadcast_to(z.reshape(-1, self.n_states) if z.size else z,
+                                     (n, self.n_states)), dtype=float, order="C")
         many = self.compile(__name__, "_force_many_z")._force_many_z
         return many(np.ascontiguousarray(r.ravel()), np.ascontiguousarray(rdot.ravel()),
                     np.ascontiguousarray(x2.ravel()), z, self.vector(values),

@@ -828,6 +828,11 @@ class GreyBoxProblem:
     ) -> None:
         if not data:
             raise FieldDiagError("give at least one session to fit")
+        if model.n_states:
+            stateful = [t.name for t in model.terms if t.n_states]
+            raise FieldDiagError(
+                f"the grey-box fit cannot fit {stateful} yet: effects with an internal state "
+                "(hysteresis) are simulated but not fitted; leave them out of the model")
         self.model = model
         self.data = list(data)
         masses = sorted({round(float(d.added_mass_kg), 9) for d in self.data})
