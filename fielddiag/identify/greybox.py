@@ -81,6 +81,7 @@ from fielddiag.identify.greybox_solver import (
     _psd_clip,
     hac_covariance,
     levenberg_marquardt,
+    solve,
 )
 
 __all__ = [
@@ -133,6 +134,7 @@ def fit_greybox(
     stage_iterations: int = 4,
     stage_xtol: float = 1e-3,
     callback: Any = None,
+    solver: str = "lm",
 ) -> GreyBoxResult:
     """Fit the model to one or more sessions by Levenberg-Marquardt on sensitivities.
 
@@ -176,6 +178,10 @@ def fit_greybox(
     callback : callable or None
         ``callback(iteration, reported_values_dict, cost)`` after each accepted step of the
         final stage.
+    solver : str
+        ``"lm"`` (:func:`~fielddiag.identify.greybox_solver.levenberg_marquardt`) or
+        ``"trf"`` (``scipy.optimize.least_squares``, same Jacobian), see the measurement in
+        :mod:`fielddiag.identify.greybox_solver`.
 
     Returns
     -------
@@ -240,17 +246,16 @@ def fit_greybox(
         if hz >= 0.5 * shortest:
             break
         prob.horizon_s = float(hz)
-        st = levenberg_marquardt(fun, q, lo / scale, hi / scale,
-                                 max_iterations=stage_iterations, xtol=stage_xtol,
-                                 ftol=stage_xtol)
+        st = solve(solver, fun, q, lo / scale, hi / scale,
+                   max_iterations=stage_iterations, xtol=stage_xtol, ftol=stage_xtol)
         q = st.x
         total_it += st.iterations
         total_ev += st.evaluations
         stages.append({"horizon_s": float(hz), "iterations": st.iterations,
                        "cost": float(st.cost)})
     prob.horizon_s = None
-    out = levenberg_marquardt(fun, q, lo / scale, hi / scale,
-                              max_iterations=max_iterations, xtol=xtol, callback=cb)
+    out = solve(solver, fun, q, lo / scale, hi / scale,
+                max_iterations=max_iterations, xtol=xtol, callback=cb)
     stages.append({"horizon_s": None, "iterations": out.iterations, "cost": float(out.cost)})
     out.iterations += total_it
     out.evaluations += total_ev
