@@ -204,3 +204,17 @@ def test_a_new_effect_is_simulated_fitted_and_diagnosed(cubic_damper) -> None:
     per_kg = out["findings"][0]["parameters"]["cubic_damping_ns3_per_m3_per_kg"]
     assert per_kg == pytest.approx(c3 / car.body_mass_kg, rel=0.25)
     assert "cubic damper" in out["findings"][0]["explanation"]
+
+
+def test_effects_with_internal_state_are_simulated_but_not_fitted() -> None:
+    from fielddiag.identify.greybox import GreyBoxData, GreyBoxProblem
+    from fielddiag.sim import QuarterCarParams
+
+    model = fx.linear_model() + HystereticSpring()
+    n = 400
+    data = GreyBoxData(sample_rate_hz=100.0, wheel_disp_m=np.zeros(n), wheel_vel_mps=np.zeros(n),
+                       body_accel_mps2=np.zeros(n))
+    with pytest.raises(FieldDiagError, match="internal state"):
+        GreyBoxProblem(model, [data])
+    with pytest.raises(FieldDiagError, match="internal states"):
+        fx.model_from_sim(QuarterCarParams(), [HystereticSpring(2e4, 2e-3)])

@@ -14,10 +14,13 @@ an importable module (``__main__``) or an unwritable cache directory fall back t
 source compiled in memory, per process.
 
 Why generate rather than compose closures: numba cannot cache functions that close over
-other jitted functions, so plain composition recompiles every loop in every process (the
-grey-box and simulator loops take seconds each to compile); first-class function
-objects would keep one cached loop but call every kernel through a pointer, without
-inlining.
+other jitted functions, so plain composition recompiles every loop in every process.
+Measured (2026-11-25, shared 2-core machine at load ~9): the first grey-box simulation with
+sensitivities of linear + coupling + friction in a fresh process takes 65-100 s when the
+loop is compiled in memory (``FIELDDIAG_KERNEL_CACHE=""``, what closures would cost in
+every process: the CLI, each diagnosis worker) and 4-5 s from the on-disk cache of the
+generated module. First-class function objects would keep one cached loop but call every
+kernel through a pointer, without inlining.
 """
 
 from __future__ import annotations
