@@ -19,8 +19,9 @@ quantisation and saturation. Entry points: :func:`simulate` and :func:`simulate_
 
 Modules: ``vehicle`` (parameters, analytic T21), ``effects`` (the library's effects with
 values), ``dynamics`` (numba RK4 loop compiled around the effects' kernels, static
-equilibrium from their static contributions, step choice from their speed bounds), ``road`` (ISO 8608, events, speed),
-``sensors`` (accelerometer chain), ``drive`` (:func:`simulate` and its result).
+equilibrium from their static contributions, step choice from their speed bounds),
+``road`` (ISO 8608, events, speed), ``sensors`` (accelerometer chain), ``drive``
+(:func:`simulate` and its result).
 
 The road height between profile samples is a Catmull-Rom cubic (it passes through the
 samples like linear interpolation, but its slope is continuous), and ``udot = du/ds * v``.
