@@ -245,8 +245,8 @@ class ForceModel:
         r, rdot, x2 = np.broadcast_arrays(np.asarray(r, float), np.asarray(rdot, float),
                                           np.asarray(x2, float))
         theta = self.vector(values)
-        args = (np.ascontiguousarray(r.ravel()), np.ascontiguousarray(rdot.ravel()),
-                np.ascontiguousarray(x2.ravel()))
+        # copies: views from broadcast_arrays are flagged read-only-to-be for numba
+        args = (np.array(r.ravel()), np.array(rdot.ravel()), np.array(x2.ravel()))
         if self.n_states == 0:
             many = self.compile(__name__, "_force_many")._force_many
             return many(*args, theta, self.constant_values())
@@ -265,8 +265,8 @@ class ForceModel:
         z = np.array(np.broadcast_to(z.reshape(-1, self.n_states) if z.size else z,
                                      (n, self.n_states)), dtype=float, order="C")
         many = self.compile(__name__, "_force_many_z")._force_many_z
-        return many(np.ascontiguousarray(r.ravel()), np.ascontiguousarray(rdot.ravel()),
-                    np.ascontiguousarray(x2.ravel()), z, self.vector(values),
+        return many(np.array(r.ravel()), np.array(rdot.ravel()), np.array(x2.ravel()), z,
+                    self.vector(values),
                     self.constant_values())
 
     def static_states(self, r: float, values: Sequence[float] | np.ndarray) -> np.ndarray:
