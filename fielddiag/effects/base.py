@@ -481,6 +481,16 @@ EFFECTS: dict[str, type[Effect]] = {}
 def register_effect(cls: type[Effect]) -> type[Effect]:
     """Add an effect class to :data:`EFFECTS` (usable as a class decorator).
 
+    Parameters
+    ----------
+    cls : type
+        An :class:`Effect` subclass with a unique ``name``.
+
+    Returns
+    -------
+    type
+        ``cls`` itself.
+
     Raises
     ------
     FieldDiagError
@@ -494,7 +504,13 @@ def register_effect(cls: type[Effect]) -> type[Effect]:
 
 
 def unregister_effect(name: str) -> None:
-    """Remove an effect from the registry (tests that register throw-away effects)."""
+    """Remove an effect from the registry (tests that register throw-away effects).
+
+    Parameters
+    ----------
+    name : str
+        Public name of the effect; unknown names are ignored.
+    """
     EFFECTS.pop(name, None)
 
 
@@ -510,6 +526,16 @@ def _usage(linear: bool = False) -> str:
 
 def get_effect(name: str) -> type[Effect]:
     """The effect class registered under ``name``.
+
+    Parameters
+    ----------
+    name : str
+        Public name (``"coulomb_friction"``).
+
+    Returns
+    -------
+    type
+        The :class:`Effect` subclass.
 
     Raises
     ------
