@@ -1,5 +1,12 @@
 """Grey-box fit of the body equation: simulation, sensitivity equations, bounded LM.
 
+This module runs the fit (:func:`fit_greybox`, :func:`validation_runs`); its parts live
+by concern in ``greybox_data`` (:class:`GreyBoxData`, units, default band),
+``greybox_sensitivities`` (the numba integrator of the body and its sensitivities),
+``greybox_model`` (:class:`GreyBoxProblem`: parametrisation, residuals, start values),
+``greybox_solver`` (Levenberg-Marquardt, HAC covariance) and ``greybox_results`` (result
+objects and the one NRMSE definition); the force terms come from :mod:`fielddiag.effects`.
+
 Model (Serban & Freeman's time-domain fit, seed 000). The body of one car corner, driven
 by the measured wheel motion ``x1(t), v1(t)``::
 
