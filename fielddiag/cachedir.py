@@ -15,10 +15,11 @@ from pathlib import Path
 
 import platformdirs
 
-__all__ = ["cache_dir", "configure_numba_cache"]
+__all__ = ["cache_dir", "configure_numba_cache", "writable"]
 
 
-def _writable(path: Path) -> bool:
+def writable(path: Path) -> bool:
+    """Create ``path`` if needed and tell whether a file can be written in it."""
     try:
         path.mkdir(parents=True, exist_ok=True)
         probe = path / f".probe-{os.getpid()}"
@@ -48,7 +49,7 @@ def cache_dir(*parts: str) -> Path:
     """
     base = os.environ.get("FIELDDIAG_CACHE_DIR") or platformdirs.user_cache_dir("fielddiag")
     path = Path(base).joinpath(*parts)
-    if _writable(path):
+    if writable(path):
         return path
     fallback = Path(tempfile.gettempdir(), f"fielddiag-cache-{os.getuid()}").joinpath(*parts)
     fallback.mkdir(parents=True, exist_ok=True)

@@ -162,7 +162,7 @@ def test_new_effect_is_one_small_class(rng: np.random.Generator) -> None:
 def test_kernels_compile_in_memory_without_a_cache_directory(monkeypatch,
                                                              rng: np.random.Generator) -> None:
     """FIELDDIAG_KERNEL_CACHE="" (or an unwritable cache) compiles per process instead."""
-    from fielddiag.identify import terms
+    from fielddiag.effects import compose as terms
 
     monkeypatch.setenv("FIELDDIAG_KERNEL_CACHE", "")
     monkeypatch.setattr(terms, "_BOUND_CACHE", {})

@@ -47,6 +47,7 @@ from fielddiag.diagnose.selection import (
     paired_block_t,
     select_model,
 )
+from fielddiag.effects import EFFECTS, ForceModel, diagnosis_effects, get_effect, split_shape
 from fielddiag.errors import FieldDiagError, InsufficientDataError
 from fielddiag.identify.greybox import (
     GreyBoxData,
@@ -55,10 +56,12 @@ from fielddiag.identify.greybox import (
     fit_greybox,
     validation_runs,
 )
-from fielddiag.identify.terms import TERMS, ForceModel, make_term, split_shape
 
-#: The effects the diagnosis knows (names are part of the JSON interface).
-EFFECT_LIBRARY = ("coulomb_friction", "cubic_stiffness", "bump_stop", "asymmetric_damping")
+#: The effects the diagnosis tries by default when this module was imported (the
+#: library's ``diagnosable`` effects; names are part of the JSON interface).
+#: :func:`diagnose_drives` asks the registry at each call, so an effect registered later
+#: is tried too.
+EFFECT_LIBRARY = diagnosis_effects()
 GRAVITY = dsp.GRAVITY_MPS2
 
 
@@ -142,7 +145,7 @@ def _prepare(drive: Drive, band: tuple[float, float], rate_hz: float, holdout: f
 # ----------------------------------------------------------------------------- fitting
 def _model(effects: Sequence[str], coupling: bool) -> ForceModel:
     names = ["linear_spring", "linear_damper"] + (["coupling_spring"] if coupling else [])
-    return ForceModel(make_term(n) for n in [*names, *effects])
+    return ForceModel(get_effect(n)() for n in [*names, *effects])
 
 
 def _effect_params(model: ForceModel, effects: Sequence[str]) -> list[tuple[str, Any]]:
@@ -168,7 +171,8 @@ def _values(result) -> tuple[dict[str, float], dict[str, float]]:
 
 
 def _pinned(result, model: ForceModel, effects: Sequence[str]) -> tuple[str, ...]:
-    """Effect parameters that are not clearly physical (at a bound, or a softening spring)."""
+    """Effect parameters that are not clearly physical (at a bound, or not significantly
+    positive where the effect says so), and effects unphysical as a whole."""
     vals, stds = _values(result)
     out = []
     for key, spec in _effect_params(model, effects):
@@ -177,26 +181,24 @@ def _pinned(result, model: ForceModel, effects: Sequence[str]) -> tuple[str, ...
             out.append(key)
             continue
         s = s if np.isfinite(s) else 0.0
-        if spec.name == "smoothing_velocity_mps":
+        if spec.shape:
             # a shape parameter, often loosely determined: only its upper end is telling
-            # (there the friction has turned into a linear damper Ff / v_s)
+            # (there friction's smoothing has turned it into a linear damper Ff / v_s)
             if v >= 0.98 * spec.upper:
                 out.append(key)
             continue
         for bound in (spec.lower, spec.upper):
             if np.isfinite(bound) and abs(v - bound) <= max(2.0 * s, 1e-9 * max(1.0, abs(bound))):
                 out.append(key)
-        if spec.name == "cubic_stiffness_n_per_m3" and v <= 2.0 * s:
-            out.append(key)  # not progressive (softening or indistinguishable from 0)
-        if spec.name in ("friction_force_n", "stiffness_n_per_m") and v <= 2.0 * s:
-            out.append(key)
-    if "asymmetric_damping" in effects:
-        c = vals.get("asymmetric_damping.compression_damping_ns_per_m", np.nan)
-        r = vals.get("asymmetric_damping.rebound_damping_ns_per_m", np.nan)
-        sc = stds.get("asymmetric_damping.compression_damping_ns_per_m", 0.0)
-        sr = stds.get("asymmetric_damping.rebound_damping_ns_per_m", 0.0)
-        if abs(c - r) <= 2.0 * np.hypot(sc, sr):
-            out.append("asymmetric_damping")  # symmetric after all
+        if spec.significant and v <= 2.0 * s:
+            out.append(key)  # not there (or softening) within its uncertainty
+    for t in model.terms:
+        if t.name in effects:
+            pre = t.name + "."
+            own = {k[len(pre):]: v for k, v in vals.items() if k.startswith(pre)}
+            own_s = {k[len(pre):]: v for k, v in stds.items() if k.startswith(pre)}
+            if t.unphysical(own, own_s):
+                out.append(t.name)  # e.g. an asymmetric damper that is symmetric after all
     return tuple(dict.fromkeys(out))
 
 
@@ -297,19 +299,13 @@ def _equation_error_fit(
     fit, val = stack("fit"), stack("val")
     n_th = model.n_params
     th0 = []
+    own_start: dict[str, float] = {}
+    for t in model.terms:
+        own_start.update({f"{t.name}.{k}": v for k, v in t.start_values(fit["r"], start).items()})
     for key, spec in zip(model.param_keys, model.specs, strict=True):
         v = start.get(key)
         if v is None or not np.isfinite(v):
-            if spec.name == "gap_m":
-                v = float(np.quantile(-fit["r"], 0.95))
-            elif spec.name in ("compression_damping_ns_per_m", "rebound_damping_ns_per_m"):
-                v = start.get("linear_damper.suspension_damping_ns_per_m", spec.typical)
-            elif spec.name in ("cubic_stiffness_n_per_m3", "coupling_stiffness_n_per_m"):
-                v = 0.0
-            elif spec.name == "friction_force_n":
-                v = 0.02 * spec.typical
-            else:
-                v = spec.typical
+            v = own_start.get(key, spec.typical)
             if not absolute and spec.scales_with_force:
                 v = v / 380.0 if key not in start else v
         th0.append(v)
@@ -517,14 +513,10 @@ class Diagnosis:
         }
 
 
-#: Effect parameters that do not scale with force (named alike per unit mass).
-_SHAPE_PARAMS = frozenset(
-    p.name for cls in TERMS.values() for p in cls.params if not p.scales_with_force
-)
-
-
 def _per_kg(name: str) -> str:
-    return name if name in _SHAPE_PARAMS else f"{name}_per_kg"
+    """Per-unit-mass name (parameters that do not scale with force keep their name)."""
+    fixed = {p.name for cls in EFFECTS.values() for p in cls.params if not p.scales_with_force}
+    return name if name in fixed else f"{name}_per_kg"
 
 
 def _linear_summary(vals: dict[str, float], mode: str) -> dict[str, float]:
@@ -565,43 +557,13 @@ def explain(
     chosen: dict[str, float],
     mode: str,
 ) -> str:
-    """A sentence a technician can act on."""
+    """A sentence a technician can act on (the effect's own words, see
+    :meth:`fielddiag.effects.base.Effect.explain`)."""
     per = "" if mode == "pair" else " per kg of sprung mass"
-    hid = _absorbed(base, chosen)
-    if effect == "coulomb_friction":
-        f = params.get("friction_force_n", params.get("friction_force_n_per_kg", float("nan")))
-        return (
-            f"dry friction of about {f:.3g} N{per} in the strut{hid}. Check the strut "
-            "top mount, bushings and damper seals for binding"
-        )
-    if effect == "cubic_stiffness":
-        k3 = next(iter(params.values()))
-        return (
-            f"progressive spring: the stiffness rises with travel (cubic term {k3:.3g} "
-            f"N/m3{per}){hid}. Expected for progressive-rate springs; otherwise check "
-            "for a spring touching its seat or the helper spring engaging"
-        )
-    if effect == "bump_stop":
-        gap = params.get("gap_m", float("nan"))
-        k = params.get("stiffness_n_per_m", params.get("stiffness_n_per_m_per_kg", float("nan")))
-        return (
-            f"bump stop reached {1000 * gap:.0f} mm into compression from the unloaded ride "
-            f"height, stiffness {k:.3g} N/m{per}; it acts only over the largest bumps{hid}. "
-            "Check ride height and the bump-stop rubber if it engages too early"
-        )
-    if effect == "asymmetric_damping":
-        cc = params.get(
-            "compression_damping_ns_per_m",
-            params.get("compression_damping_ns_per_m_per_kg", float("nan")),
-        )
-        cr = params.get(
-            "rebound_damping_ns_per_m", params.get("rebound_damping_ns_per_m_per_kg", float("nan"))
-        )
-        return (
-            f"the damper is asymmetric: {cc:.4g} N s/m{per} in compression, {cr:.4g} in "
-            f"rebound (ratio {cr / cc:.2f}); a single damping value misrepresents it{hid}"
-        )
-    return effect
+    cls = EFFECTS.get(effect)
+    if cls is None:
+        return effect
+    return cls().explain(params, per, _absorbed(base, chosen))
 
 
 # ----------------------------------------------------------------------------- main
@@ -760,7 +722,7 @@ UNEXPLAINED_MIN_SHARE_OF_LINEAR_MISFIT = 0.03
 
 def _unexplained(
     fit: _Fit, prepared: Sequence[_Prepared], coupling: bool, baseline: _Fit | None = None,
-    say: Callable[[str], None] = lambda _m: None,
+    say: Callable[[str], None] = lambda _m: None, known: Sequence[str] = EFFECT_LIBRARY,
 ) -> tuple[dict | None, DepartureMap]:
     """Force left that depends on (r, rdot) but that the chosen model does not describe."""
     r, v, dep, is_val = _departure(fit, prepared, coupling)
@@ -784,6 +746,7 @@ def _unexplained(
     if t < 4.0 or gain < 0.08 or share < UNEXPLAINED_MIN_SHARE_OF_LINEAR_MISFIT:
         return None, full_map
     reg = dmap.region()
+    names = ", ".join(EFFECTS[n].description for n in known if n in EFFECTS)
     return {
         "effect": "unexplained",
         "confidence": float(min(1.0, 2.0 * gain)),
@@ -791,9 +754,8 @@ def _unexplained(
         "where": {"region": reg},
         "explanation": (
             f"{100 * gain:.0f} % of the force the model leaves unexplained depends on "
-            "suspension travel and speed in a way none of the known effects (dry friction, "
-            "progressive spring, bump stop, asymmetric damper) describes; see the departure "
-            "map for where it acts"
+            f"suspension travel and speed in a way none of the known effects ({names}) "
+            "describes; see the departure map for where it acts"
         ),
     }, full_map
 
@@ -850,7 +812,7 @@ def known_model_nrmse(
 def diagnose_drives(
     drives: Sequence[Drive],
     *,
-    effects: Sequence[str] = EFFECT_LIBRARY,
+    effects: Sequence[str] | None = None,
     band_hz: tuple[float, float] | None = None,
     holdout_fraction: float = 0.3,
     analysis_rate_hz: float = 125.0,
@@ -863,8 +825,9 @@ def diagnose_drives(
     ----------
     drives : sequence of Drive
         One drive, or two with different added masses.
-    effects : sequence of str
-        The candidate effects.
+    effects : sequence of str or None
+        The candidate effects; None: every ``diagnosable`` effect of the library
+        (:func:`fielddiag.effects.diagnosis_effects`).
     band_hz : (lo, hi) or None
         Valid band; default from the sample rate and length.
     holdout_fraction : float
@@ -878,6 +841,8 @@ def diagnose_drives(
     """
     say = progress or (lambda _msg: None)
     drives = list(drives)
+    effects = diagnosis_effects() if effects is None else tuple(effects)
+    tried = effects
     if len(drives) not in (1, 2):
         raise FieldDiagError("diagnose takes one drive or a before/after pair")
     mode = "pair" if len(drives) == 2 else "single"
@@ -958,7 +923,7 @@ def diagnose_drives(
     sel = select_model(base.candidate, [f.candidate for f in fits[1:]])
     chosen = next(f for f in fits if f.candidate is sel.chosen)
     say("looking for structure no effect explains")
-    unexplained, _ = _unexplained(chosen, prepared, coupling, base, say)
+    unexplained, _ = _unexplained(chosen, prepared, coupling, base, say, known=tried)
     # where the restoring force departs from the *linear* surface (what the findings fix)
     r, v, dep, _ = _departure(base, prepared, coupling)
     dmap = departure_map(r, v, dep, bins=12)

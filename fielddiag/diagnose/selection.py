@@ -16,19 +16,25 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from fielddiag.identify.greybox_results import nrmse
+
+__all__ = [
+    "CandidateFit",
+    "Comparison",
+    "Selection",
+    "compare",
+    "confidence",
+    "nrmse",
+    "paired_block_t",
+    "select_model",
+]
+
 #: Blocks for the paired test on held-out residuals.
 N_BLOCKS = 30
 #: t statistic an improvement must reach (about 3 sigma, one-sided).
 MIN_T = 3.0
 #: Minimum relative reduction of held-out mean-square error per added parameter.
 MIN_GAIN_PER_PARAM = 0.02
-
-
-def nrmse(residual: np.ndarray, reference: np.ndarray) -> float:
-    """rms(residual) / rms(reference - mean)."""
-    ref = np.asarray(reference, float)
-    scale = float(np.sqrt(np.mean((ref - ref.mean()) ** 2)))
-    return float(np.sqrt(np.mean(np.asarray(residual, float) ** 2)) / scale) if scale else np.inf
 
 
 def paired_block_t(

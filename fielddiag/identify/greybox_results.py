@@ -14,7 +14,32 @@ import numpy as np
 
 from fielddiag.errors import FieldDiagError
 
-__all__ = ["GreyBoxResult", "ParameterEstimate", "SessionFit"]
+__all__ = ["GreyBoxResult", "ParameterEstimate", "SessionFit", "nrmse"]
+
+
+def nrmse(residual: np.ndarray, reference: np.ndarray) -> float:
+    """Normalised root-mean-square error: ``rms(residual) / rms(reference - mean)``.
+
+    The one definition used by every fit and every comparison of fits (grey-box fit and
+    validation, diagnosis candidates, rig mode).
+
+    Parameters
+    ----------
+    residual : ndarray
+        Measured minus modelled values (any unit).
+    reference : ndarray
+        The measured values, same unit.
+
+    Returns
+    -------
+    float
+        Dimensionless; 0 for a perfect model, about 1 for a model no better than the mean;
+        inf when the reference is constant.
+    """
+    ref = np.asarray(reference, float)
+    scale = float(np.sqrt(np.mean((ref - ref.mean()) ** 2)))
+    res = np.asarray(residual, float)
+    return float(np.sqrt(np.mean(res**2)) / scale) if scale > 0 else math.inf
 
 
 def _num(x: float | None) -> float | None:

@@ -314,6 +314,9 @@ class OnlineEstimator:
             raise FieldDiagError(f"cutoff_hz={cutoff_hz} must be in (0, {0.1 * sample_rate_hz})")
         self.sample_rate_hz = float(sample_rate_hz)
         self.model = model or linear_model()
+        if self.model.n_states:
+            raise FieldDiagError("the on-line estimator cannot track effects with an internal "
+                                 "state (hysteresis); leave them out of the model")
         self.cutoff_hz = float(cutoff_hz)
         self.body_mass_kg = body_mass_kg
         self.added_mass_kg = float(added_mass_kg)

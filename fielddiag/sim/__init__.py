@@ -10,15 +10,18 @@ are deviations from the static equilibrium of the car *without* added mass, so
     (M2 + dM) a2 = F_s - K3 x2 - dM g
     M1 a1        = K1 (u - x1) + C1 (udot - v1) - F_s
 
-``N`` is the sum of the :data:`EFFECTS` switched on. A drive starts from the static
+``N`` is the sum of the :data:`EFFECTS` switched on (each defined once, in the effect
+library :mod:`fielddiag.effects`). A drive starts from the static
 equilibrium of the loaded car, is integrated by fixed-step RK4 (numba) at an internal rate
 ``k * output_rate >= 4000 Hz`` and is read by two accelerometers (:class:`SensorModel`):
 gain, bias and drift, a causal Butterworth anti-alias filter, decimation, then ADC noise,
 quantisation and saturation. Entry points: :func:`simulate` and :func:`simulate_pair`.
 
-Modules: ``vehicle`` (parameters, analytic T21), ``effects`` (N(r, rdot)), ``dynamics``
-(numba RK4 kernel, static equilibrium, step choice), ``road`` (ISO 8608, events, speed),
-``sensors`` (accelerometer chain), ``drive`` (:func:`simulate` and its result).
+Modules: ``vehicle`` (parameters, analytic T21), ``effects`` (the library's effects with
+values), ``dynamics`` (numba RK4 loop compiled around the effects' kernels, static
+equilibrium from their static contributions, step choice from their speed bounds),
+``road`` (ISO 8608, events, speed), ``sensors`` (accelerometer chain), ``drive``
+(:func:`simulate` and its result).
 
 The road height between profile samples is a Catmull-Rom cubic (it passes through the
 samples like linear interpolation, but its slope is continuous), and ``udot = du/ds * v``.

@@ -13,10 +13,9 @@ from fielddiag.units import GRAVITY_MPS2 as G_MPS2  # noqa: F401 - the simulator
 MIN_INTERNAL_RATE_HZ = 4000.0
 
 # Step-size check: RK4 is run with |lambda| * dt <= MAX_LAMBDA_DT for the fastest mode,
-# estimated with these bounds on suspension travel and rate.
+# estimated from each effect's speed_bounds (over fielddiag.effects.TRAVEL_BOUND_M and
+# RATE_BOUND_MPS).
 MAX_LAMBDA_DT = 0.5
-TRAVEL_BOUND_M = 0.15
-RATE_BOUND_MPS = 2.0
 
 
 def check_number(

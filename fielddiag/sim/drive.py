@@ -11,8 +11,14 @@ import numpy as np
 
 from fielddiag.errors import FieldDiagError
 from fielddiag.sim._common import check_number
-from fielddiag.sim.dynamics import _integrate, _phys_array, internal_rate_factor, static_state
-from fielddiag.sim.effects import Effect, _effect_slots, effects_from_dicts
+from fielddiag.sim.dynamics import (
+    _phys_array,
+    integrate,
+    internal_rate_factor,
+    static_state,
+    suspension_model,
+)
+from fielddiag.sim.effects import Effect, effects_from_dicts
 from fielddiag.sim.road import (
     RoadEvent,
     SpeedProfile,
@@ -253,7 +259,7 @@ def simulate(
     if speed is not None and not isinstance(speed, SpeedProfile):
         raise FieldDiagError(f"speed must be a SpeedProfile or None, got {speed!r}.")
     effects = tuple(effects)
-    eff = _effect_slots(effects)
+    model, theta = suspension_model(params, effects)
     if seed is None:
         seed = int(np.random.SeedSequence().generate_state(1)[0])
     road_ss, speed_ss, wheel_ss, body_ss = np.random.SeedSequence(seed).spawn(4)
@@ -280,13 +286,16 @@ def simulate(
         o = initial_offset
         state0[:4] += [o.wheel_disp_m, o.wheel_vel_mps, o.body_disp_m, o.body_vel_mps]
     v_k = np.ascontiguousarray(speed.knot_speed_mps)
-    acc1, acc2, out = _integrate(
-        state0,
+    acc1, acc2, out = integrate(
+        model,
+        np.ascontiguousarray(state0[:4]),
+        np.ascontiguousarray(state0[4 : 4 + model.n_states]),
         n_int,
         dt,
         k,
         phys,
-        eff,
+        theta,
+        model.constant_values(),
         np.ascontiguousarray(speed.knot_time_s),
         v_k,
         np.ascontiguousarray(speed.knot_distance_m),

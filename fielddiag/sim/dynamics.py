@@ -10,26 +10,14 @@ import numpy as np
 from numba import njit
 from scipy import optimize
 
+from fielddiag.effects import Effect, ForceModel, LinearDamper, LinearSpring
+from fielddiag.effects.compose import model_force_z
 from fielddiag.errors import FieldDiagError
 from fielddiag.sim._common import G_MPS2, MAX_LAMBDA_DT, MIN_INTERNAL_RATE_HZ
-from fielddiag.sim.effects import (
-    _S_ASYM_COMP,
-    _S_ASYM_ON,
-    _S_ASYM_REB,
-    _S_BUMP_GAP,
-    _S_BUMP_K,
-    _S_CUBIC,
-    _S_FRIC_F,
-    _S_FRIC_V,
-    _S_HYST_K,
-    _S_HYST_ZY,
-    _S_QUAD,
-    Effect,
-    _effect_slots,
-)
+from fielddiag.sim.effects import check_effects
 from fielddiag.sim.vehicle import DEFAULT_PARAMS, QuarterCarParams
 
-_P_M1, _P_K1, _P_C1, _P_M2T, _P_K2, _P_C2, _P_K3, _P_DMG = range(8)
+_P_M1, _P_K1, _P_C1, _P_M2T, _P_K3, _P_DMG = range(6)
 
 
 def _phys_array(params: QuarterCarParams, added_mass_kg: float) -> np.ndarray:
@@ -40,45 +28,108 @@ def _phys_array(params: QuarterCarParams, added_mass_kg: float) -> np.ndarray:
             p.tire_stiffness_n_per_m,
             p.tire_damping_ns_per_m,
             p.body_mass_kg + added_mass_kg,
-            p.suspension_stiffness_n_per_m,
-            p.suspension_damping_ns_per_m,
             p.coupling_stiffness_n_per_m,
             added_mass_kg * G_MPS2,
         ]
     )
 
 
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _suspension_force(r, rd, z, phys, eff):  # pragma: no cover - compiled
-    """Force of the suspension on the body and dz/dt of the hysteretic state."""
-    f = -phys[_P_K2] * r
-    if eff[_S_ASYM_ON] != 0.0:
-        f -= (eff[_S_ASYM_COMP] if rd < 0.0 else eff[_S_ASYM_REB]) * rd
-    else:
-        f -= phys[_P_C2] * rd
-    if eff[_S_FRIC_F] != 0.0:
-        f -= eff[_S_FRIC_F] * math.tanh(rd / eff[_S_FRIC_V])
-    if eff[_S_CUBIC] != 0.0:
-        f -= eff[_S_CUBIC] * r * r * r
-    if eff[_S_BUMP_K] != 0.0:
-        pen = -r - eff[_S_BUMP_GAP]
-        if pen > 0.0:
-            f += eff[_S_BUMP_K] * pen
-    if eff[_S_QUAD] != 0.0:
-        f -= eff[_S_QUAD] * rd * abs(rd)
-    dz = 0.0
-    if eff[_S_HYST_K] != 0.0:
-        f -= eff[_S_HYST_K] * z
-        dz = rd - abs(rd) * z / eff[_S_HYST_ZY]
-    return f, dz
+def suspension_model(
+    params: QuarterCarParams, effects: Sequence[Effect] = ()
+) -> tuple[ForceModel, np.ndarray]:
+    """The suspension force of the car as a library model and its parameter vector.
+
+    The car's linear spring K2 and damper C2 plus the effects (with their values; an
+    asymmetric damper replaces C2). The coupling K3 is not part of it: it acts on the
+    body only.
+
+    Raises
+    ------
+    FieldDiagError
+        Not an effect with values, or an effect given twice.
+    """
+    effects = check_effects(effects)
+    names = [e.name for e in effects]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise FieldDiagError(
+            f"effect {twice[0]!r} given twice; give it once with the combined parameters."
+        )
+    model = ForceModel([LinearSpring(params.suspension_stiffness_n_per_m),
+                        LinearDamper(params.suspension_damping_ns_per_m), *effects])
+    return model, model.values_of()
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
-def _force_array(r, rd, z, phys, eff):  # pragma: no cover - compiled
-    out = np.empty(r.shape[0])
-    for i in range(r.shape[0]):
-        out[i] = _suspension_force(r[i], rd[i], z[i], phys, eff)[0]
-    return out
+def _rhs(x1, v1, x2, v2, z, u, ud, phys, th, cs, dth, dz):  # pragma: no cover - template
+    fs, _, _, _ = model_force_z(x2 - x1, v2 - v1, x2, z, th, cs, dth, dz)
+    a1 = (phys[_P_K1] * (u - x1) + phys[_P_C1] * (ud - v1) - fs) / phys[_P_M1]
+    a2 = (fs - phys[_P_K3] * x2 - phys[_P_DMG]) / phys[_P_M2T]
+    return a1, a2, fs
+
+
+def _integrate(
+    state0, z0, n_int, dt, k_dec, phys, th, cs, knot_t, knot_v, knot_d, knot_a, road_h, inv_dx
+):  # pragma: no cover - numba template
+    """Fixed-step RK4. Returns (a1, a2) at the internal rate and, every k_dec-th step,
+    rows x1, v1, x2, v2, u, F_s, z[0] (0 without internal states)."""
+    n_out = (n_int + k_dec - 1) // k_dec
+    acc1 = np.empty(n_int)
+    acc2 = np.empty(n_int)
+    out = np.empty((7, n_out))
+    nz = z0.shape[0]
+    z = z0.copy()
+    zt = np.empty(nz)
+    kz1 = np.empty(nz)
+    kz2 = np.empty(nz)
+    kz3 = np.empty(nz)
+    kz4 = np.empty(nz)
+    dth = np.empty(max(th.shape[0], 1))
+    x1, v1, x2, v2 = state0[0], state0[1], state0[2], state0[3]
+    h2 = 0.5 * dt
+    h6 = dt / 6.0
+    u, ud, j = _road_at(0.0, 0, knot_t, knot_v, knot_d, knot_a, road_h, inv_dx)
+    for n in range(n_int):
+        t = n * dt
+        a1, a2, fs = _rhs(x1, v1, x2, v2, z, u, ud, phys, th, cs, dth, kz1)
+        acc1[n] = a1
+        acc2[n] = a2
+        if n % k_dec == 0:
+            m = n // k_dec
+            out[0, m] = x1
+            out[1, m] = v1
+            out[2, m] = x2
+            out[3, m] = v2
+            out[4, m] = u
+            out[5, m] = fs
+            out[6, m] = z[0] if nz > 0 else 0.0
+        um, udm, j = _road_at(t + h2, j, knot_t, knot_v, knot_d, knot_a, road_h, inv_dx)
+        w1, w2 = v1 + h2 * a1, v2 + h2 * a2
+        for i in range(nz):
+            zt[i] = z[i] + h2 * kz1[i]
+        b1, b2, _ = _rhs(x1 + h2 * v1, w1, x2 + h2 * v2, w2, zt, um, udm, phys, th, cs, dth,
+                         kz2)
+        y1, y2 = v1 + h2 * b1, v2 + h2 * b2
+        for i in range(nz):
+            zt[i] = z[i] + h2 * kz2[i]
+        c1, c2, _ = _rhs(x1 + h2 * w1, y1, x2 + h2 * w2, y2, zt, um, udm, phys, th, cs, dth,
+                         kz3)
+        u, ud, j = _road_at(t + dt, j, knot_t, knot_v, knot_d, knot_a, road_h, inv_dx)
+        q1, q2 = v1 + dt * c1, v2 + dt * c2
+        for i in range(nz):
+            zt[i] = z[i] + dt * kz3[i]
+        d1, d2, _ = _rhs(x1 + dt * y1, q1, x2 + dt * y2, q2, zt, u, ud, phys, th, cs, dth, kz4)
+        x1 += h6 * (v1 + 2.0 * (w1 + y1) + q1)
+        x2 += h6 * (v2 + 2.0 * (w2 + y2) + q2)
+        v1 += h6 * (a1 + 2.0 * (b1 + c1) + d1)
+        v2 += h6 * (a2 + 2.0 * (b2 + c2) + d2)
+        for i in range(nz):
+            z[i] += h6 * (kz1[i] + 2.0 * (kz2[i] + kz3[i]) + kz4[i])
+    return acc1, acc2, out
+
+
+def integrate(model: ForceModel, *args):
+    """Run the RK4 kernel compiled for ``model`` (see :func:`_integrate` for the arguments)."""
+    return model.compile(__name__, "_rhs", "_integrate", error_model="numpy")._integrate(*args)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -111,58 +162,6 @@ def _road_at(t, j, knot_t, knot_v, knot_d, knot_a, road_h, inv_dx):  # pragma: n
     return u, du * inv_dx * v, j
 
 
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _rhs(x1, v1, x2, v2, z, u, ud, phys, eff):  # pragma: no cover - compiled
-    fs, dz = _suspension_force(x2 - x1, v2 - v1, z, phys, eff)
-    a1 = (phys[_P_K1] * (u - x1) + phys[_P_C1] * (ud - v1) - fs) / phys[_P_M1]
-    a2 = (fs - phys[_P_K3] * x2 - phys[_P_DMG]) / phys[_P_M2T]
-    return a1, a2, dz, fs
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def _integrate(
-    state0, n_int, dt, k_dec, phys, eff, knot_t, knot_v, knot_d, knot_a, road_h, inv_dx
-):  # pragma: no cover - compiled
-    """Fixed-step RK4. Returns (a1, a2) at the internal rate and, every k_dec-th step,
-    rows x1, v1, x2, v2, u, F_s, z."""
-    n_out = (n_int + k_dec - 1) // k_dec
-    acc1 = np.empty(n_int)
-    acc2 = np.empty(n_int)
-    out = np.empty((7, n_out))
-    x1, v1, x2, v2, z = state0[0], state0[1], state0[2], state0[3], state0[4]
-    h2 = 0.5 * dt
-    h6 = dt / 6.0
-    u, ud, j = _road_at(0.0, 0, knot_t, knot_v, knot_d, knot_a, road_h, inv_dx)
-    for n in range(n_int):
-        t = n * dt
-        a1, a2, dz, fs = _rhs(x1, v1, x2, v2, z, u, ud, phys, eff)
-        acc1[n] = a1
-        acc2[n] = a2
-        if n % k_dec == 0:
-            m = n // k_dec
-            out[0, m] = x1
-            out[1, m] = v1
-            out[2, m] = x2
-            out[3, m] = v2
-            out[4, m] = u
-            out[5, m] = fs
-            out[6, m] = z
-        um, udm, j = _road_at(t + h2, j, knot_t, knot_v, knot_d, knot_a, road_h, inv_dx)
-        w1, w2 = v1 + h2 * a1, v2 + h2 * a2
-        b1, b2, bz, _ = _rhs(x1 + h2 * v1, w1, x2 + h2 * v2, w2, z + h2 * dz, um, udm, phys, eff)
-        y1, y2 = v1 + h2 * b1, v2 + h2 * b2
-        c1, c2, cz, _ = _rhs(x1 + h2 * w1, y1, x2 + h2 * w2, y2, z + h2 * bz, um, udm, phys, eff)
-        u, ud, j = _road_at(t + dt, j, knot_t, knot_v, knot_d, knot_a, road_h, inv_dx)
-        q1, q2 = v1 + dt * c1, v2 + dt * c2
-        d1, d2, dzz, _ = _rhs(x1 + dt * y1, q1, x2 + dt * y2, q2, z + dt * cz, u, ud, phys, eff)
-        x1 += h6 * (v1 + 2.0 * (w1 + y1) + q1)
-        x2 += h6 * (v2 + 2.0 * (w2 + y2) + q2)
-        v1 += h6 * (a1 + 2.0 * (b1 + c1) + d1)
-        v2 += h6 * (a2 + 2.0 * (b2 + c2) + d2)
-        z += h6 * (dz + 2.0 * (bz + cz) + dzz)
-    return acc1, acc2, out
-
-
 def suspension_force_n(
     r_m: np.ndarray | float,
     rdot_mps: np.ndarray | float,
@@ -181,7 +180,8 @@ def suspension_force_n(
     effects : sequence of Effect
         Nonlinear effects added to the linear spring and damper.
     hysteretic_state_m : array_like
-        Internal deflection z of a :class:`HystereticSpring` (ignored without one).
+        Internal state of the effect that has one (the deflection z of a
+        :class:`~fielddiag.effects.HystereticSpring`); ignored without one.
 
     Returns
     -------
@@ -191,13 +191,12 @@ def suspension_force_n(
     r, rd, z = np.broadcast_arrays(
         np.asarray(r_m, float), np.asarray(rdot_mps, float), np.asarray(hysteretic_state_m, float)
     )
-    f = _force_array(
-        r.ravel().copy(),
-        rd.ravel().copy(),
-        z.ravel().copy(),
-        _phys_array(params, 0.0),
-        _effect_slots(effects),
-    )
+    model, th = suspension_model(params, effects)
+    if model.n_states == 0:
+        f = model.force(r.ravel(), rd.ravel(), 0.0, th)[0]
+    else:
+        states = np.repeat(z.reshape(-1, 1), model.n_states, axis=1)
+        f = model.force(r.ravel(), rd.ravel(), 0.0, th, states=states)[0]
     return f.reshape(r.shape)
 
 
@@ -215,8 +214,8 @@ def internal_rate_factor(
     2 m/s / yield_displacement_m.
     """
     stiff = damp = rate = 0.0
-    for e in effects:
-        s, d, q = e._speed_bounds()
+    for e in check_effects(effects):
+        s, d, q = e.speed_bounds(e.value_vector())
         stiff, damp, rate = stiff + s, damp + d, max(rate, q)
     p = params
     m_min = min(p.wheel_mass_kg, p.body_mass_kg + added_mass_kg)
@@ -238,26 +237,25 @@ def static_state(
     added_mass_kg: float = 0.0,
     road_height_m: float = 0.0,
 ) -> np.ndarray:
-    """Static equilibrium [x1, v1, x2, v2, z] of the loaded car, nonlinear effects included.
+    """Static equilibrium [x1, v1, x2, v2, z...] of the loaded car, effects included.
 
     The force balance ``F_s(r) = K3 x2 + dM g``, ``x1 = u - F_s / K1`` is solved for
-    ``r`` by Brent's method (friction and dampers are zero at rest; a hysteretic spring
-    is taken as loaded slowly from r = 0).
+    ``r`` by Brent's method, with ``F_s`` the sum of the effects' static contributions
+    (:meth:`~fielddiag.effects.base.Effect.static_force_n`: friction and dampers are zero
+    at rest; a hysteretic spring is taken as loaded slowly from r = 0). The internal
+    states follow ``x1, v1, x2, v2`` (one 0 when there are none).
 
     Raises
     ------
     FieldDiagError
         No stable equilibrium within 2 m of suspension travel.
     """
-    phys, eff = _phys_array(params, added_mass_kg), _effect_slots(effects)
+    phys = _phys_array(params, added_mass_kg)
+    model, th = suspension_model(params, effects)
     k1, k3, wg = params.tire_stiffness_n_per_m, params.coupling_stiffness_n_per_m, phys[_P_DMG]
-    k_h, z_y = eff[_S_HYST_K], eff[_S_HYST_ZY]
-
-    def z_of(r: float) -> float:
-        return math.copysign(z_y * -math.expm1(-abs(r) / z_y), r) if k_h else 0.0
 
     def fs(r: float) -> float:
-        return _suspension_force(r, 0.0, z_of(r), phys, eff)[0]
+        return model.static_force(r, 0.0, th)
 
     def h(r: float) -> float:  # net upward force on the body, decreasing in r when stable
         f = fs(r)
@@ -286,4 +284,5 @@ def static_state(
         )
     f = fs(r0)
     x1 = road_height_m - f / k1
-    return np.array([x1, 0.0, x1 + r0, 0.0, z_of(r0)])
+    z = model.static_states(r0, th) if model.n_states else np.zeros(1)
+    return np.array([x1, 0.0, x1 + r0, 0.0, *z])

@@ -1,0 +1,56 @@
+"""Dahl hysteresis: a spring with an internal deflection state (the one effect with memory)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+from numba import njit
+
+from fielddiag.effects.base import INF, RATE_BOUND_MPS, Effect, ParamSpec, register_effect
+
+
+@njit(cache=True, nogil=True)
+def _hysteretic_spring(r, rd, x2, z, p, c, dp, dz):  # pragma: no cover - compiled
+    # state z[0]: the hidden deflection; dz/dt = rdot - |rdot| z / z_y
+    dz[0] = rd - abs(rd) * z[0] / p[1]
+    dp[0] = -z[0]
+    dp[1] = 0.0  # through the state only (not propagated: no sensitivity of z yet)
+    return -p[0] * z[0], 0.0, 0.0, 0.0
+
+
+@register_effect
+class HystereticSpring(Effect):
+    """Dahl hysteresis (Bouc-Wen with n = 1, A = 1, beta = 1/z_y, gamma = 0).
+
+    A hidden deflection ``z`` follows ``dz/dt = rdot - |rdot| z / yield_displacement_m``
+    and the force on the body is ``-hysteretic_stiffness_n_per_m * z``: stiffness
+    ``hysteretic_stiffness_n_per_m`` for small reversals, saturating at
+    ``hysteretic_stiffness_n_per_m * yield_displacement_m`` (a rounded friction loop) for
+    travel much larger than ``yield_displacement_m``. Simulated only: the grey-box fit
+    does not integrate internal states yet.
+    """
+
+    name = "hysteretic_spring"
+    description = "hysteresis (Dahl) in the suspension"
+    n_states = 1
+    linear_in_params = False
+    params = (
+        ParamSpec("hysteretic_stiffness_n_per_m", "N/m", 0.0, INF, 2e4, True,
+                  "hysteretic stiffness", "drive over small ripples (many small reversals)",
+                  valid_low=0.0, valid_strict=True),
+        ParamSpec("yield_displacement_m", "m", 0.0, INF, 2e-3, False,
+                  "hysteresis yield displacement",
+                  "drive over small ripples (many small reversals)",
+                  valid_low=0.0, valid_strict=True),
+    )
+    kernel = _hysteretic_spring
+
+    def static_states(self, r: float, values: Sequence[float]) -> np.ndarray:
+        """``z`` reached when loaded slowly and monotonically from r = 0 to ``r``."""
+        z_y = values[1]
+        return np.array([math.copysign(z_y * -math.expm1(-abs(r) / z_y), r)])
+
+    def speed_bounds(self, values: Sequence[float]) -> tuple[float, float, float]:
+        return values[0], 0.0, RATE_BOUND_MPS / values[1]

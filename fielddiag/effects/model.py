@@ -1,0 +1,373 @@
+"""A model of the suspension force: a sum of effects (built with ``+``).
+
+Like a pysindy feature library::
+
+    model = LinearSpring() + LinearDamper() + CoulombFriction()
+
+Contract of an effect: its force is proportional to its force-scaled parameters (those
+with ``scales_with_force``), so dividing every force-scaled parameter by the mass gives
+the same model per unit mass. This is what lets one session identify ratios (K2/M2,
+C2/M2...) and two sessions with a known added mass identify absolute values.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from fielddiag.effects.base import EFFECTS, Effect, ParamSpec, get_effect
+from fielddiag.effects.compose import compile_templates, model_force, model_force_z
+from fielddiag.errors import FieldDiagError
+
+__all__ = ["ForceModel", "linear_model", "model_from_sim", "split_shape"]
+
+
+def _force_many(r, rd, x2, theta, consts):  # pragma: no cover - numba template
+    n = r.shape[0]
+    f = np.empty(n)
+    ds = np.empty((n, 3))
+    dp = np.empty((n, theta.shape[0]))
+    for i in range(n):
+        a, b, c, d = model_force(r[i], rd[i], x2[i], theta, consts, dp[i])
+        f[i] = a
+        ds[i, 0] = b
+        ds[i, 1] = c
+        ds[i, 2] = d
+    return f, ds, dp
+
+
+def _force_many_z(r, rd, x2, z, theta, consts):  # pragma: no cover - numba template
+    n = r.shape[0]
+    f = np.empty(n)
+    ds = np.empty((n, 3))
+    dp = np.empty((n, theta.shape[0]))
+    dz = np.empty(z.shape)
+    for i in range(n):
+        a, b, c, d = model_force_z(r[i], rd[i], x2[i], z[i], theta, consts, dp[i], dz[i])
+        f[i] = a
+        ds[i, 0] = b
+        ds[i, 1] = c
+        ds[i, 2] = d
+    return f, ds, dp, dz
+
+
+class ForceModel:
+    """A sum of force terms (build it with ``+``).
+
+    Parameters
+    ----------
+    terms : iterable of Effect
+        The terms. A term listed in another's ``replaces`` is dropped (asymmetric damping
+        replaces the linear damper); a term given twice is an error.
+
+    Notes
+    -----
+    Parameters are addressed by key ``"<term>.<param>"``; :meth:`index` also accepts a
+    parameter's plain name when it is unique in the model.
+    """
+
+    def __init__(self, terms: Iterable[Effect]) -> None:
+        terms = list(terms)
+        for t in terms:
+            if not isinstance(t, Effect):
+                raise FieldDiagError(f"a model is made of Effect objects, got {t!r}")
+        names = [t.name for t in terms]
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise FieldDiagError(f"model term(s) {dup} given twice; give each term once")
+        replaced = {r for t in terms for r in t.replaces}
+        self.terms: tuple[Effect, ...] = tuple(t for t in terms if t.name not in replaced)
+        if not self.terms:
+            raise FieldDiagError("a model needs at least one term (e.g. LinearSpring())")
+        self._specs: list[tuple[Effect, ParamSpec]] = [
+            (t, p) for t in self.terms for p in t.params]
+
+    # ------------------------------------------------------------------ composition
+    def __add__(self, other: Effect | ForceModel) -> ForceModel:
+        if isinstance(other, Effect):
+            return ForceModel([*self._all_terms(), other])
+        if isinstance(other, ForceModel):
+            return ForceModel([*self._all_terms(), *other._all_terms()])
+        return NotImplemented
+
+    def _all_terms(self) -> tuple[Effect, ...]:
+        return self.terms
+
+    def __contains__(self, name: str) -> bool:
+        return any(t.name == name for t in self.terms)
+
+    def __len__(self) -> int:
+        return len(self.terms)
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, ForceModel) and self.terms == other.terms
+
+    def __hash__(self) -> int:
+        return hash(self.terms)
+
+    def __repr__(self) -> str:
+        return " + ".join(repr(t) for t in self.terms)
+
+    def without(self, *names: str) -> ForceModel:
+        """The model without the named terms."""
+        return ForceModel([t for t in self.terms if t.name not in names])
+
+    # ------------------------------------------------------------------ parameters
+    @property
+    def n_params(self) -> int:
+        return len(self._specs)
+
+    @property
+    def specs(self) -> tuple[ParamSpec, ...]:
+        """Parameter specifications in model order."""
+        return tuple(p for _, p in self._specs)
+
+    @property
+    def param_keys(self) -> tuple[str, ...]:
+        """``"<term>.<param>"`` for every parameter, in model order."""
+        return tuple(f"{t.name}.{p.name}" for t, p in self._specs)
+
+    @property
+    def param_terms(self) -> tuple[str, ...]:
+        """The term name of every parameter."""
+        return tuple(t.name for t, _ in self._specs)
+
+    @property
+    def linear_in_params(self) -> bool:
+        """True if every term is linear in its force-scaled parameters (see :class:`Effect`)."""
+        return all(t.linear_in_params for t in self.terms)
+
+    def index(self, name: str) -> int:
+        """Position of a parameter given by key or by unique plain (or ``_per_kg``) name."""
+        keys = self.param_keys
+        if name in keys:
+            return keys.index(name)
+        hits = [i for i, (_, p) in enumerate(self._specs)
+                if name in (p.name, p.per_unit_mass_name())]
+        if len(hits) == 1:
+            return hits[0]
+        if hits:
+            raise FieldDiagError(f"parameter name {name!r} is ambiguous; use one of "
+                                 f"{[keys[i] for i in hits]}")
+        raise FieldDiagError(f"the model has no parameter {name!r}; it has {list(keys)}")
+
+    def vector(self, values: Mapping[str, float] | Sequence[float] | np.ndarray | None = None,
+               *, per_unit_mass_kg: float | None = None) -> np.ndarray:
+        """Parameter vector from a mapping (missing entries take typical values) or sequence.
+
+        Parameters
+        ----------
+        values : mapping, sequence or None
+            By key or unique name; None gives the typical values.
+        per_unit_mass_kg : float or None
+            If given, divide the typical values of force-scaled parameters by this mass
+            (typical values are absolute).
+        """
+        if values is not None and not isinstance(values, Mapping):
+            v = np.asarray(values, dtype=float).reshape(-1)
+            if v.size != self.n_params:
+                raise FieldDiagError(f"expected {self.n_params} parameter values "
+                                     f"({list(self.param_keys)}), got {v.size}")
+            return v.copy()
+        out = np.array([p.typical for p in self.specs], dtype=float)
+        if per_unit_mass_kg:
+            out = np.where(self.force_scaled, out / per_unit_mass_kg, out)
+        for k, v in (values or {}).items():
+            out[self.index(k)] = float(v)
+        return out
+
+    @property
+    def force_scaled(self) -> np.ndarray:
+        """Boolean mask of the force-scaled parameters."""
+        return np.array([p.scales_with_force for p in self.specs], dtype=bool)
+
+    @property
+    def lower(self) -> np.ndarray:
+        return np.array([p.lower for p in self.specs], dtype=float)
+
+    @property
+    def upper(self) -> np.ndarray:
+        return np.array([p.upper for p in self.specs], dtype=float)
+
+    def constant_values(self) -> np.ndarray:
+        """All terms' constants, concatenated in model order."""
+        parts = [t.constant_values() for t in self.terms]
+        return np.concatenate(parts) if parts else np.zeros(0)
+
+    # ------------------------------------------------------------------ numerics
+    def compile(self, module_name: str, *names: str, error_model: str = "python") -> Any:
+        """Compile numba templates of ``module_name`` for this model's force.
+
+        A template is a plain function (no decorator) that calls the global
+        ``model_force(r, rdot, x2, theta, consts, dtheta)``; see
+        :func:`fielddiag.effects.compose.compile_templates`. Returns a namespace of the
+        compiled functions, cached in memory and on disk per combination of effect classes.
+        """
+        return compile_templates(tuple(type(t) for t in self.terms), module_name,
+                                 tuple(names), error_model)
+
+    @property
+    def n_states(self) -> int:
+        """Internal states of all effects together."""
+        return sum(t.n_states for t in self.terms)
+
+    def force(
+        self,
+        r: np.ndarray | float,
+        rdot: np.ndarray | float,
+        x2: np.ndarray | float,
+        values: Mapping[str, float] | Sequence[float] | np.ndarray,
+        *,
+        states: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Force on the body and its derivatives at arrays of states.
+
+        Parameters
+        ----------
+        r, rdot, x2 : array_like
+            Suspension extension [m], its rate [m/s] and body position [m] (broadcast).
+        values : mapping or sequence
+            Parameter values (absolute, or per unit mass for a force per unit mass).
+        states : (n, n_states) array or None
+            Internal states of the effects that have them (default zeros).
+
+        Returns
+        -------
+        force : (n,) array
+            Force [N] (or per unit mass, m/s2).
+        d_state : (n, 3) array
+            Derivatives with respect to r, rdot, x2.
+        d_params : (n, n_params) array
+            Derivatives with respect to the parameters.
+        """
+        r, rdot, x2 = np.broadcast_arrays(np.asarray(r, float), np.asarray(rdot, float),
+                                          np.asarray(x2, float))
+        theta = self.vector(values)
+        # copies: views from broadcast_arrays are flagged read-only-to-be for numba
+        args = (np.array(r.ravel()), np.array(rdot.ravel()), np.array(x2.ravel()))
+        if self.n_states == 0:
+            many = self.compile(__name__, "_force_many")._force_many
+            return many(*args, theta, self.constant_values())
+        return self.force_and_state_rates(r, rdot, x2, theta, states)[:3]
+
+    def force_and_state_rates(
+        self, r: np.ndarray | float, rdot: np.ndarray | float, x2: np.ndarray | float,
+        values: Mapping[str, float] | Sequence[float] | np.ndarray,
+        states: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`force` plus the rates ``dz/dt`` (n, n_states) of the internal states."""
+        r, rdot, x2 = np.broadcast_arrays(np.asarray(r, float), np.asarray(rdot, float),
+                                          np.asarray(x2, float))
+        n = r.size
+        z = np.zeros((n, self.n_states)) if states is None else np.asarray(states, float)
+        z = np.array(np.broadcast_to(z.reshape(-1, self.n_states) if z.size else z,
+                                     (n, self.n_states)), dtype=float, order="C")
+        many = self.compile(__name__, "_force_many_z")._force_many_z
+        return many(np.array(r.ravel()), np.array(rdot.ravel()), np.array(x2.ravel()), z,
+                    self.vector(values),
+                    self.constant_values())
+
+    def static_states(self, r: float, values: Sequence[float] | np.ndarray) -> np.ndarray:
+        """Internal states of all effects at rest at extension ``r`` [m] (loaded slowly)."""
+        th = self.vector(values)
+        parts, p0 = [], 0
+        for t in self.terms:
+            p1 = p0 + len(t.params)
+            if t.n_states:
+                parts.append(np.asarray(t.static_states(r, th[p0:p1]), float))
+            p0 = p1
+        return np.concatenate(parts) if parts else np.zeros(0)
+
+    def static_force(self, r: float, x2: float,
+                     values: Sequence[float] | np.ndarray) -> float:
+        """Force at rest [N] at extension ``r`` and body position ``x2`` [m]: the sum of the
+        effects' :meth:`~fielddiag.effects.base.Effect.static_force_n`."""
+        th = self.vector(values)
+        total, p0 = 0.0, 0
+        for t in self.terms:
+            p1 = p0 + len(t.params)
+            total += float(t.static_force_n(r, x2, th[p0:p1])[()])
+            p0 = p1
+        return total
+
+    def values_of(self, overrides: Mapping[str, float] | None = None) -> np.ndarray:
+        """Parameter vector from the values the effects carry (simulated effects), then
+        ``overrides`` by key or name; typical values for the rest."""
+        out = np.concatenate([t.value_vector() for t in self.terms]) if self.terms else \
+            np.zeros(0)
+        for k, v in (overrides or {}).items():
+            out[self.index(k)] = float(v)
+        return out
+
+    # ------------------------------------------------------------------ serialisation
+    def to_dict(self) -> dict[str, Any]:
+        """``{"terms": [{"name", "settings"}, ...]}``; inverse of :meth:`from_dict`."""
+        return {"terms": [t.to_dict() for t in self.terms]}
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> ForceModel:
+        """Inverse of :meth:`to_dict`."""
+        return cls(get_effect(t["name"])(**t.get("settings", {})) for t in d["terms"])
+
+    @classmethod
+    def from_names(cls, names: Iterable[str]) -> ForceModel:
+        """A model from term names (``["linear_spring", "linear_damper"]``)."""
+        return cls(get_effect(n)() for n in names)
+
+
+def linear_model(coupling: bool = False) -> ForceModel:
+    """Linear spring + linear damper (+ coupling spring)."""
+    m = get_effect("linear_spring")() + get_effect("linear_damper")()
+    return m + get_effect("coupling_spring")() if coupling else m
+
+
+def model_from_sim(params: Any, effects: Sequence[Effect] = (), *, coupling: bool | None = None
+                   ) -> tuple[ForceModel, dict[str, float]]:
+    """The model to fit and the absolute parameter values matching a simulated car.
+
+    Parameters
+    ----------
+    params : fielddiag.sim.QuarterCarParams
+        The linear car.
+    effects : sequence of Effect
+        Simulated effects (with values); memoryless ones only (the fit has no states).
+    coupling : bool or None
+        Include the coupling spring; None: when the car's coupling stiffness is non-zero.
+
+    Returns
+    -------
+    (ForceModel, dict)
+        The model (effects with the fit's settings) and its parameters by key.
+
+    Raises
+    ------
+    FieldDiagError
+        An effect with internal states.
+    """
+    if coupling is None:
+        coupling = params.coupling_stiffness_n_per_m != 0.0
+    terms: list[Effect] = list(linear_model(coupling).terms)
+    values = {
+        "linear_spring.suspension_stiffness_n_per_m": params.suspension_stiffness_n_per_m,
+        "linear_damper.suspension_damping_ns_per_m": params.suspension_damping_ns_per_m,
+        "coupling_spring.coupling_stiffness_n_per_m": params.coupling_stiffness_n_per_m,
+    }
+    for e in effects:
+        if e.linear or e.n_states:
+            raise FieldDiagError(f"effect {e.name!r} has no model term the grey-box fit can "
+                                 "use (internal states are not fitted yet)")
+        terms.append(e.as_term())
+        for name, v in (e.values or {}).items():
+            values[f"{e.name}.{name}"] = v
+    model = ForceModel(terms)
+    return model, {k: v for k, v in values.items() if k in model.param_keys}
+
+
+def split_shape(params: dict[str, float]) -> tuple[dict[str, float], dict[str, float]]:
+    """(physical parameters, shape parameters) of an effect's fitted values, by name (see
+    :attr:`ParamSpec.shape`); per-kg names of shape parameters are the same names."""
+    shape_names = {p.name for cls in EFFECTS.values() for p in cls.params if p.shape}
+    return ({k: v for k, v in params.items() if k not in shape_names},
+            {k: v for k, v in params.items() if k in shape_names})

@@ -1,0 +1,36 @@
+"""Velocity-squared (orifice) damping."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from numba import njit
+
+from fielddiag.effects.base import INF, RATE_BOUND_MPS, Effect, ParamSpec, register_effect
+
+
+@njit(cache=True, nogil=True)
+def _quadratic_damping(r, rd, x2, p, c, dp):  # pragma: no cover - compiled
+    a = abs(rd)
+    dp[0] = -rd * a
+    return -p[0] * rd * a, 0.0, -2.0 * p[0] * a, 0.0
+
+
+@register_effect
+class QuadraticDamping(Effect):
+    """Quadratic (orifice) damping: force on the body ``-c_q rdot |rdot|``.
+
+    Simulated and fittable; not yet among the diagnosis's default candidates (the
+    scenario catalogue uses it as the effect outside the library).
+    """
+
+    name = "quadratic_damping"
+    description = "quadratic (orifice) damping"
+    params = (
+        ParamSpec("damping_ns2_per_m2", "N s^2/m^2", 0.0, INF, 500.0, True,
+                  "quadratic damping", "drive over sharp bumps (fast suspension strokes)"),
+    )
+    kernel = _quadratic_damping
+
+    def speed_bounds(self, values: Sequence[float]) -> tuple[float, float, float]:
+        return 0.0, 2 * values[0] * RATE_BOUND_MPS, 0.0

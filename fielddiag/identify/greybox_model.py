@@ -1,0 +1,326 @@
+"""The grey-box problem: parametrisation, band-limited residuals and their Jacobian,
+bounds and equation-error start values, over one or several sessions.
+
+Parameters are fitted per unit sprung mass (``theta / M2``) and, when the sessions carry
+at least two different added masses, with the inverse sprung mass ``1 / M2`` as one more
+parameter (the acceleration is nearly linear in it); each session adds two nuisance
+parameters (initial body offset and velocity). Simulated and measured acceleration are
+compared in the same band (zero-phase Butterworth on both).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import signal
+
+from fielddiag.effects import ForceModel
+from fielddiag.errors import FieldDiagError, InsufficientDataError
+from fielddiag.identify.greybox_data import GRAVITY_MPS2, GreyBoxData
+from fielddiag.identify.greybox_sensitivities import _EMPTY, _kernels
+
+__all__ = ["GreyBoxProblem"]
+
+#: Scale of the initial-state nuisances in the fit: 1 mm, 1 cm/s.
+_NUISANCE_SCALE = np.array([1e-3, 1e-2])
+
+
+# ---------------------------------------------------------------------------------------
+# The problem
+# ---------------------------------------------------------------------------------------
+
+
+def _band_sos(band_hz: tuple[float, float] | None, fs: float, order: int = 4) -> np.ndarray | None:
+    if band_hz is None:
+        return None
+    lo, hi = band_hz
+    return signal.butter(order, [lo, min(hi, 0.45 * fs)], "bandpass", fs=fs, output="sos")
+
+
+@dataclass
+class _Prepared:
+    data: GreyBoxData
+    sos: np.ndarray | None
+    measured: np.ndarray  # filtered measured a2 (trimmed)
+    keep: slice
+
+
+class GreyBoxProblem:
+    """The residual function of the grey-box fit and its parametrisation.
+
+    Parameters
+    ----------
+    model : ForceModel
+        Force terms.
+    data : sequence of GreyBoxData
+        Sessions fitted together (shared model parameters).
+    absolute : bool or None
+        Fit the sprung mass as well (needs at least two different added masses). None:
+        whenever the data allow it.
+    fixed : mapping or None
+        Parameters held constant, by key or unique name (absolute values in absolute
+        mode, per unit mass otherwise; ``body_mass_kg`` fixes the mass).
+    body_mass_kg : float or None
+        Sprung mass guess: start value in absolute mode; in per-unit-mass mode only used to
+        load a session with added mass (``dM g / (M2 + dM)`` per unit mass).
+    fit_initial_state : bool
+        Fit each session's initial body offset and velocity (two nuisance parameters).
+    substeps : int
+        RK4 steps per sample interval.
+    trim_s : float or None
+        Seconds left out of the residual at both ends of every session (filter edges).
+        None: one period of the lower band edge (0 for full-band data).
+    """
+
+    def __init__(
+        self,
+        model: ForceModel,
+        data: Sequence[GreyBoxData],
+        *,
+        absolute: bool | None = None,
+        fixed: Mapping[str, float] | None = None,
+        body_mass_kg: float | None = None,
+        fit_initial_state: bool = True,
+        substeps: int = 1,
+        trim_s: float | None = None,
+    ) -> None:
+        if not data:
+            raise FieldDiagError("give at least one session to fit")
+        if model.n_states:
+            stateful = [t.name for t in model.terms if t.n_states]
+            raise FieldDiagError(
+                f"the grey-box fit cannot fit {stateful} yet: effects with an internal state "
+                "(hysteresis) are simulated but not fitted; leave them out of the model")
+        self.model = model
+        self.data = list(data)
+        masses = sorted({round(float(d.added_mass_kg), 9) for d in self.data})
+        can_abs = len(masses) >= 2
+        if absolute is None:
+            absolute = can_abs
+        if absolute and not can_abs:
+            raise InsufficientDataError(
+                "the sprung mass (and absolute stiffness and damping) needs two sessions with "
+                "different added masses; give a second session recorded with a known mass "
+                "on the body (--added-mass), or fit per unit mass")
+        if not absolute and len(masses) > 1:
+            raise FieldDiagError(
+                "sessions with different added masses need the absolute fit (absolute=True)")
+        self.absolute = bool(absolute)
+        self.body_mass_guess_kg = body_mass_kg
+        self.substeps = int(substeps)
+        if self.substeps < 1:
+            raise FieldDiagError("substeps must be >= 1")
+        self.fit_initial_state = fit_initial_state
+        p = model.n_params
+        self.n_model = p
+        self.scaled = model.force_scaled
+        fixed = dict(fixed or {})
+        self.fixed_mass = fixed.pop("body_mass_kg", None)
+        self.fixed_values: dict[int, float] = {}
+        for k, v in fixed.items():
+            i = model.index(k)
+            self.fixed_values[i] = float(v)  # reporting units; converted in _per_unit_fixed
+        # fitted vector: free model params (per unit mass) | M2 | (dx0, dv0) per session
+        self.free_model = np.array([i for i in range(p) if i not in self.fixed_values], int)
+        self.has_mass = self.absolute and self.fixed_mass is None
+        n_free = self.free_model.size + (1 if self.has_mass else 0)
+        self.nuis_index = n_free
+        self.n_fit = n_free + (2 * len(self.data) if fit_initial_state else 0)
+        self.evaluations = 0
+        #: Simulation horizon [s] of a continuation stage (None: the whole record).
+        self.horizon_s: float | None = None
+        self._prep = [self._prepare(d) for d in self.data]
+
+    # ------------------------------------------------------------------ data
+    def _prepare(self, d: GreyBoxData) -> _Prepared:
+        sos = _band_sos(d.band_hz, d.sample_rate_hz)
+        if d.band_hz is None:
+            trim = 0
+        else:
+            trim = int(round(d.sample_rate_hz / d.band_hz[0]))
+        if 2 * trim >= d.n_samples - 10:
+            raise InsufficientDataError(f"{d.name}: {d.duration_s:.1f} s is too short for a "
+                                        f"fit in {d.band_hz} Hz; record longer")
+        keep = slice(trim, d.n_samples - trim)
+        meas = d.body_accel_mps2 if sos is None else signal.sosfiltfilt(sos, d.body_accel_mps2)
+        return _Prepared(d, sos, np.ascontiguousarray(meas[keep]), keep)
+
+    @property
+    def n_residuals(self) -> int:
+        return sum(pr.measured.size for pr in self._prep)
+
+    # ------------------------------------------------------------------ parameter maps
+    def _mass_for_unit(self, d: GreyBoxData) -> tuple[float, float]:
+        """(mass, load) of a session in per-unit-mass mode."""
+        if d.added_mass_kg and self.body_mass_guess_kg:
+            return 1.0, GRAVITY_MPS2 * d.added_mass_kg / (self.body_mass_guess_kg
+                                                           + d.added_mass_kg)
+        return 1.0, 0.0
+
+    def unpack(self, z: np.ndarray) -> tuple[np.ndarray, float | None, np.ndarray]:
+        """Fitted vector -> (per-unit-mass model parameters, M2 or None, nuisances (s, 2))."""
+        theta = np.empty(self.n_model)
+        theta[self.free_model] = z[: self.free_model.size]
+        mass = None
+        if self.absolute:
+            mass = 1.0 / float(z[self.free_model.size]) if self.has_mass else float(
+                self.fixed_mass)
+        for i, v in self.fixed_values.items():
+            theta[i] = v / mass if (self.absolute and self.scaled[i]) else v
+        nuis = np.zeros((len(self.data), 2))
+        if self.fit_initial_state:
+            nuis[:] = z[self.nuis_index:].reshape(-1, 2)
+        return theta, mass, nuis
+
+    def pack(self, theta_unit: np.ndarray, mass: float | None,
+             nuis: np.ndarray | None = None) -> np.ndarray:
+        z = [theta_unit[self.free_model]]
+        if self.has_mass:
+            z.append([1.0 / float(mass)])
+        if self.fit_initial_state:
+            z.append(np.zeros(2 * len(self.data)) if nuis is None else np.ravel(nuis))
+        return np.concatenate([np.asarray(a, float) for a in z])
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        lo = [self.model.lower[self.free_model]]
+        hi = [self.model.upper[self.free_model]]
+        if self.has_mass:  # fitted as the inverse mass 1/M2 [1/kg] (nearly linear)
+            lo.append([1e-9])
+            hi.append([1e3])
+        if self.fit_initial_state:
+            lo.append(np.full(2 * len(self.data), -np.inf))
+            hi.append(np.full(2 * len(self.data), np.inf))
+        return np.concatenate(lo), np.concatenate(hi)
+
+    # ------------------------------------------------------------------ residuals
+    def simulate(self, z: np.ndarray, sens: bool) -> list[tuple[np.ndarray, np.ndarray | None]]:
+        """Per session: (filtered, trimmed a2_sim, filtered trimmed d a2 / d z)."""
+        theta_u, mass, nuis = self.unpack(z)
+        kern = _kernels(self.model)._simulate
+        consts = self.model.constant_values()
+        out = []
+        nf = self.free_model.size
+        for s, pr in enumerate(self._prep):
+            d = pr.data
+            if self.absolute:
+                m_tot = mass + d.added_mass_kg
+                load = d.added_mass_kg * GRAVITY_MPS2
+                theta_abs = np.where(self.scaled, theta_u * mass, theta_u)
+            else:
+                m_tot, load = self._mass_for_unit(d)
+                theta_abs = theta_u
+            every = 0
+            if self.horizon_s is not None and d.body_disp_m is not None:
+                every = max(1, int(round(self.horizon_s * d.sample_rate_hz)))  # 0 s: 1 sample
+            a, jac = kern(d.wheel_disp_m, d.wheel_vel_mps, 1.0 / d.sample_rate_hz,
+                               self.substeps, theta_abs, consts, m_tot, load, nuis[s, 0],
+                               nuis[s, 1], sens, every,
+                               d.body_disp_m if every else _EMPTY,
+                               d.body_vel_mps if every else _EMPTY, d.band_hz is not None)
+            self.evaluations += 1
+            jz = None
+            if sens:
+                p = self.n_model
+                jz = np.zeros((a.size, self.n_fit))
+                jt = jac[:, :p]
+                if self.absolute:
+                    col_scale = np.where(self.scaled, mass, 1.0)
+                    jz[:, :nf] = jt[:, self.free_model] * col_scale[self.free_model]
+                    if self.has_mass:  # d/d(1/M) = -M^2 d/dM
+                        jz[:, nf] = -mass * mass * (jt[:, self.scaled] @ theta_u[self.scaled]
+                                                    + jac[:, p])
+                else:
+                    jz[:, :nf] = jt[:, self.free_model]
+                if self.fit_initial_state:
+                    jz[:, self.nuis_index + 2 * s] = jac[:, p + 1]
+                    jz[:, self.nuis_index + 2 * s + 1] = jac[:, p + 2]
+            if pr.sos is not None:
+                a = signal.sosfiltfilt(pr.sos, a)
+                if jz is not None:
+                    jz = signal.sosfiltfilt(pr.sos, jz, axis=0)
+            out.append((a[pr.keep], None if jz is None else jz[pr.keep]))
+        return out
+
+    def residual_and_jacobian(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Stacked residuals (simulated - measured) and their Jacobian wrt ``z``."""
+        sims = self.simulate(z, True)
+        r = np.concatenate([a - pr.measured for (a, _), pr in zip(sims, self._prep,
+                                                                    strict=True)])
+        j = np.vstack([jz for _, jz in sims])
+        return r, j
+
+    def residual(self, z: np.ndarray) -> np.ndarray:
+        """Stacked residuals only (no sensitivities): for finite-difference comparisons."""
+        sims = self.simulate(z, False)
+        return np.concatenate([a - pr.measured for (a, _), pr in zip(sims, self._prep,
+                                                                      strict=True)])
+
+    def session_slices(self) -> list[slice]:
+        out, i = [], 0
+        for pr in self._prep:
+            out.append(slice(i, i + pr.measured.size))
+            i += pr.measured.size
+        return out
+
+    # ------------------------------------------------------------------ start values
+    def equation_error_start(self) -> tuple[np.ndarray, float | None]:
+        """Start values by linear least squares on the equation error (needs body motion).
+
+        Per session group of equal added mass, regress the band-limited body acceleration
+        on the force derivatives of the linear-in-parameter terms at typical values; the
+        sprung mass follows from the ratio of the first force-scaled parameter between
+        the two groups. Falls back to typical values where this fails.
+        """
+        model = self.model
+        guess_mass = self.body_mass_guess_kg or 380.0
+        typical_u = model.vector(per_unit_mass_kg=guess_mass)
+        per_group: dict[float, np.ndarray] = {}
+        for dm in sorted({round(d.added_mass_kg, 9) for d in self.data}):
+            rows, ys = [], []
+            for pr in self._prep:
+                d = pr.data
+                if round(d.added_mass_kg, 9) != dm or d.body_disp_m is None:
+                    continue
+                r = d.body_disp_m - d.wheel_disp_m
+                rd = d.body_vel_mps - d.wheel_vel_mps
+                _, _, dp = model.force(r, rd, d.body_disp_m, typical_u)
+                if pr.sos is not None:
+                    dp = signal.sosfiltfilt(pr.sos, dp, axis=0)
+                rows.append(dp[pr.keep])
+                ys.append(pr.measured)
+            if not rows:
+                continue
+            a = np.vstack(rows)
+            y = np.concatenate(ys)
+            lin = np.array([t.linear_in_params for t in model.terms for _ in t.params])
+            cols = np.flatnonzero(lin & model.force_scaled)
+            if cols.size == 0:
+                continue
+            sol = np.linalg.lstsq(a[:, cols], y, rcond=None)[0]
+            th = typical_u.copy()
+            th[cols] = sol
+            per_group[dm] = th
+        if not per_group:
+            return np.clip(typical_u, model.lower, model.upper), (
+                guess_mass if self.absolute else None)
+        groups = sorted(per_group)
+        mass = None
+        th = per_group[groups[0]]
+        if self.absolute:
+            mass = guess_mass
+            k = int(np.flatnonzero(model.force_scaled)[0])
+            a0, a1 = per_group[groups[0]][k], per_group[groups[-1]][k]
+            dm0, dm1 = groups[0], groups[-1]
+            # theta/(M + dm0) = a0, theta/(M + dm1) = a1  ->  M
+            if a0 > a1 > 0:
+                m = (a1 * dm1 - a0 * dm0) / (a0 - a1)
+                if m > 0 and math.isfinite(m):
+                    mass = m
+            th = per_group[groups[0]] * np.where(model.force_scaled, (mass + dm0) / mass, 1.0)
+        th = np.clip(th, model.lower, model.upper)
+        return th, mass
+
+

@@ -1,0 +1,250 @@
+"""Simulation of the body with its sensitivity equations (numba).
+
+The body of one car corner, driven by the measured wheel motion ``x1(t), v1(t)``::
+
+    (M2 + dM) a2 = F(r, rdot, x2; theta) - dM g,      r = x2 - x1
+
+is integrated by fixed-step RK4 at the sample rate (or a sub-multiple) with the wheel input
+interpolated by cubic Hermite polynomials through the samples of ``x1`` and ``v1``, from
+the static equilibrium ``F(x2 - x1(0), 0, x2) = dM g`` plus an initial offset and velocity.
+The sensitivity equations ``d/dt (dx2/dtheta) = ...`` are integrated with the same RK4
+steps (direct differentiation), which makes them the exact derivative of the discrete
+simulation; the initial sensitivities come from differentiating the static equilibrium
+(Serban & Freeman eq. 18). The loop is a template compiled per combination of effects
+(:mod:`fielddiag.effects.compose`) around the effects' kernels, which return the force's
+derivatives with respect to the states and the parameters.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+from numba import njit
+
+from fielddiag.effects import ForceModel
+from fielddiag.effects.compose import model_force
+from fielddiag.identify.greybox_data import GRAVITY_MPS2
+
+__all__ = ["simulate_body"]
+
+_EMPTY = np.zeros(1)
+
+
+@njit(cache=True, nogil=True)
+def _hermite_basis(nsub):  # pragma: no cover - compiled
+    """Cubic Hermite weights of x(tau) and x'(tau)*h at tau = q / (2 nsub), q = 0..2 nsub."""
+    m = 2 * nsub + 1
+    b = np.empty((m, 8))
+    for q in range(m):
+        t = q / (2.0 * nsub)
+        t2 = t * t
+        t3 = t2 * t
+        b[q, 0] = 2 * t3 - 3 * t2 + 1  # x0
+        b[q, 1] = t3 - 2 * t2 + t  # h v0
+        b[q, 2] = -2 * t3 + 3 * t2  # x1
+        b[q, 3] = t3 - t2  # h v1
+        b[q, 4] = 6 * t2 - 6 * t  # derivative weights (divide by h)
+        b[q, 5] = 3 * t2 - 4 * t + 1
+        b[q, 6] = -6 * t2 + 6 * t
+        b[q, 7] = 3 * t2 - 2 * t
+    return b
+
+
+def _stage(x, v, sx, sv, xin, vin, theta, consts, mass, load, dth, out_ksv,
+           n_par, sens):  # pragma: no cover - numba template
+    """Body acceleration at one stage and, if ``sens``, d/dt of the velocity sensitivities."""
+    f, fr, fv, fx = model_force(x - xin, v - vin, x, theta, consts, dth)
+    a = (f - load) / mass
+    if sens:
+        ax = (fr + fx) / mass
+        av = fv / mass
+        q = sx.shape[0]
+        for j in range(q):
+            out_ksv[j] = ax * sx[j] + av * sv[j]
+        for j in range(n_par):
+            out_ksv[j] += dth[j] / mass
+        out_ksv[n_par] -= a / mass
+    return a
+
+
+def _simulate(x1, v1, h, nsub, theta, consts, mass, load, dx0, dv0, sens,
+              reset_every, x2r, v2r, reset_static):  # pragma: no cover - numba template
+    """RK4 of the body driven by (x1, v1), with sensitivities if ``sens``.
+
+    With ``reset_every`` > 0 the body state is reset to the measured one (``x2r``, ``v2r``;
+    plus the static deflection if ``reset_static``) every ``reset_every`` samples: short
+    simulation horizons for the continuation stages of the fit.
+
+    Returns a2 (n,) and J (n, P + 3): d a2 / d(theta, mass, dx0, dv0).
+    """
+    n = x1.shape[0]
+    p = theta.shape[0]
+    q = p + 3
+    a_out = np.empty(n)
+    jac = np.zeros((n if sens else 1, q))
+    dth = np.zeros(max(p, 1))
+    # static equilibrium F(x - x1[0], 0, x) = load, damped Newton
+    x = x1[0]
+    dg = 0.0
+    for _ in range(200):
+        f, fr, fv, fx = model_force(x - x1[0], 0.0, x, theta, consts, dth)
+        dg = fr + fx
+        if dg == 0.0:
+            break
+        step = (f - load) / dg
+        if step > 0.05:
+            step = 0.05
+        elif step < -0.05:
+            step = -0.05
+        x -= step
+        if abs(step) < 1e-14 * (1.0 + abs(x)):
+            break
+    f, fr, fv, fx = model_force(x - x1[0], 0.0, x, theta, consts, dth)
+    dg = fr + fx
+    sx = np.zeros(q)
+    sv = np.zeros(q)
+    if sens and dg != 0.0:
+        for j in range(p):
+            sx[j] = -dth[j] / dg
+    sx[p + 1] = 1.0
+    sv[p + 2] = 1.0
+    r_static = x - x1[0]
+    sx_static = sx.copy()
+    sx_static[p + 1] = 0.0
+    x += dx0
+    v = dv0
+    bas = _hermite_basis(nsub)
+    hs = h / nsub
+    k = np.zeros((4, 2, q))  # stage derivatives of (sx, sv)
+    tx = np.zeros(q)
+    tv = np.zeros(q)
+    xin = np.empty(3)
+    vin = np.empty(3)
+    for i in range(n):
+        if reset_every > 0 and i > 0 and i % reset_every == 0:
+            x = x2r[i] + (r_static if reset_static else 0.0)
+            v = v2r[i]
+            for j in range(q):
+                sx[j] = sx_static[j] if reset_static else 0.0
+                sv[j] = 0.0
+        # output at the knot; it is also stage 1 of the first sub-step
+        a1 = _stage(x, v, sx, sv, x1[i], v1[i], theta, consts, mass, load, dth,
+                    k[0, 1], p, sens)
+        a_out[i] = a1
+        if sens:
+            for j in range(q):
+                jac[i, j] = k[0, 1, j]
+            # k[0,1] holds d(sv)/dt, which equals d a2 / d params at the knot
+        if i == n - 1:
+            break
+        x0k, x1k = x1[i], x1[i + 1]
+        hv0, hv1 = h * v1[i], h * v1[i + 1]
+        for s in range(nsub):
+            for m in range(3):
+                b = bas[2 * s + m]
+                xin[m] = b[0] * x0k + b[1] * hv0 + b[2] * x1k + b[3] * hv1
+                vin[m] = (b[4] * x0k + b[5] * hv0 + b[6] * x1k + b[7] * hv1) / h
+            if s > 0:
+                a1 = _stage(x, v, sx, sv, xin[0], vin[0], theta, consts, mass, load,
+                            dth, k[0, 1], p, sens)
+            kx1, kv1 = v, a1
+            if sens:
+                for j in range(q):
+                    k[0, 0, j] = sv[j]
+                    tx[j] = sx[j] + 0.5 * hs * k[0, 0, j]
+                    tv[j] = sv[j] + 0.5 * hs * k[0, 1, j]
+            xs, vs = x + 0.5 * hs * kx1, v + 0.5 * hs * kv1
+            a2 = _stage(xs, vs, tx, tv, xin[1], vin[1], theta, consts, mass, load, dth,
+                        k[1, 1], p, sens)
+            kx2, kv2 = vs, a2
+            if sens:
+                for j in range(q):
+                    k[1, 0, j] = tv[j]
+                    tx[j] = sx[j] + 0.5 * hs * k[1, 0, j]
+                    tv[j] = sv[j] + 0.5 * hs * k[1, 1, j]
+            xs, vs = x + 0.5 * hs * kx2, v + 0.5 * hs * kv2
+            a3 = _stage(xs, vs, tx, tv, xin[1], vin[1], theta, consts, mass, load, dth,
+                        k[2, 1], p, sens)
+            kx3, kv3 = vs, a3
+            if sens:
+                for j in range(q):
+                    k[2, 0, j] = tv[j]
+                    tx[j] = sx[j] + hs * k[2, 0, j]
+                    tv[j] = sv[j] + hs * k[2, 1, j]
+            xs, vs = x + hs * kx3, v + hs * kv3
+            a4 = _stage(xs, vs, tx, tv, xin[2], vin[2], theta, consts, mass, load, dth,
+                        k[3, 1], p, sens)
+            kx4, kv4 = vs, a4
+            x += hs / 6.0 * (kx1 + 2.0 * kx2 + 2.0 * kx3 + kx4)
+            v += hs / 6.0 * (kv1 + 2.0 * kv2 + 2.0 * kv3 + kv4)
+            if sens:
+                for j in range(q):
+                    k[3, 0, j] = tv[j]
+                    sx[j] += hs / 6.0 * (k[0, 0, j] + 2.0 * k[1, 0, j] + 2.0 * k[2, 0, j]
+                                         + k[3, 0, j])
+                    sv[j] += hs / 6.0 * (k[0, 1, j] + 2.0 * k[1, 1, j] + 2.0 * k[2, 1, j]
+                                         + k[3, 1, j])
+    return a_out, jac
+
+
+def _kernels(model: ForceModel) -> Any:
+    """The simulation templates compiled for ``model`` (cached per term combination)."""
+    return model.compile(__name__, "_stage", "_simulate")
+
+
+def simulate_body(
+    model: ForceModel,
+    theta: Mapping[str, float] | Sequence[float] | np.ndarray,
+    wheel_disp_m: np.ndarray,
+    wheel_vel_mps: np.ndarray,
+    sample_rate_hz: float,
+    *,
+    mass_kg: float = 1.0,
+    added_mass_kg: float = 0.0,
+    initial_offset_m: float = 0.0,
+    initial_velocity_mps: float = 0.0,
+    sensitivities: bool = False,
+    substeps: int = 1,
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Simulate the body driven by the wheel motion, from static equilibrium.
+
+    Parameters
+    ----------
+    model : ForceModel
+        Force terms.
+    theta : mapping or sequence
+        Model parameters; absolute with ``mass_kg`` = the sprung mass, or per unit mass
+        with ``mass_kg`` = 1 and ``added_mass_kg`` = 0.
+    wheel_disp_m, wheel_vel_mps : ndarray
+        Wheel motion at the samples.
+    sample_rate_hz : float
+        Sample rate [Hz].
+    mass_kg : float
+        Sprung mass M2 (without the added mass).
+    added_mass_kg : float
+        Added mass dM; its weight ``dM g`` loads the suspension.
+    initial_offset_m, initial_velocity_mps : float
+        Deviation of the body's initial state from static equilibrium.
+    sensitivities : bool
+        Also return ``d a2 / d(theta, total mass, initial offset, initial velocity)``.
+    substeps : int
+        RK4 steps per sample interval.
+
+    Returns
+    -------
+    a2 : (n,) ndarray
+        Body acceleration without g [m/s^2].
+    jac : (n, P + 3) ndarray or None
+        Sensitivities, if asked for.
+    """
+    th = model.vector(theta)
+    a, j = _kernels(model)._simulate(np.ascontiguousarray(wheel_disp_m, dtype=float),
+                     np.ascontiguousarray(wheel_vel_mps, dtype=float), 1.0 / sample_rate_hz,
+                     int(substeps), th, model.constant_values(), float(mass_kg + added_mass_kg),
+                     float(added_mass_kg * GRAVITY_MPS2), float(initial_offset_m),
+                     float(initial_velocity_mps), bool(sensitivities), 0, _EMPTY, _EMPTY, False)
+    return a, (j if sensitivities else None)
+
+

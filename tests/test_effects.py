@@ -1,0 +1,220 @@
+"""The effect library: each effect's force law, derivatives and static contribution, and the
+promise that a new effect is one class that the simulator, the grey-box fit and the
+diagnosis all take up."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from numba import njit
+
+from fielddiag import effects as fx
+from fielddiag.effects import (
+    EFFECTS,
+    AsymmetricDamping,
+    BumpStop,
+    CoulombFriction,
+    CouplingSpring,
+    CubicStiffness,
+    Effect,
+    HystereticSpring,
+    LinearDamper,
+    LinearSpring,
+    ParamSpec,
+    QuadraticDamping,
+    diagnosis_effects,
+    make_effect,
+    register_effect,
+    unregister_effect,
+)
+from fielddiag.errors import FieldDiagError
+
+# ------------------------------------------------------------------ force laws by hand
+
+#: (effect with values, r [m], rdot [m/s], x2 [m], expected force on the body [N])
+HAND = [
+    (LinearSpring(24e3), 0.01, 0.3, 0.0, -240.0),
+    (LinearDamper(1800.0), 0.01, 0.2, 0.0, -360.0),
+    (CouplingSpring(2000.0), 0.5, 0.5, 0.01, -20.0),
+    (CoulombFriction(80.0), 0.0, 0.01, 0.0, -80.0 * math.tanh(1.0)),  # v_s 10 mm/s default
+    (CoulombFriction(80.0, 0.02), 0.0, -0.04, 0.0, 80.0 * math.tanh(2.0)),
+    (CubicStiffness(2e6), 0.05, 0.0, 0.0, -250.0),
+    (CubicStiffness(2e6), -0.05, 0.0, 0.0, 250.0),
+    (BumpStop(0.04, 1e5), -0.06, 0.0, 0.0, 2000.0),  # simulated: the sharp hinge
+    (BumpStop(0.04, 1e5), -0.03, 0.0, 0.0, 0.0),
+    (BumpStop(0.04, 1e5, width_m=1e-3), -0.04, 0.0, 0.0, 1e5 * 1e-3 * math.log(2.0)),
+    (AsymmetricDamping(1000.0, 3000.0), 0.0, -0.3, 0.0, 300.0),
+    (AsymmetricDamping(1000.0, 3000.0), 0.0, 0.3, 0.0, -900.0),
+    (QuadraticDamping(2000.0), 0.0, -0.5, 0.0, 500.0),
+]
+
+
+@pytest.mark.parametrize("effect,r,rd,x2,expected", HAND, ids=lambda v: getattr(v, "name", ""))
+def test_force_law_against_hand_computed_numbers(effect, r, rd, x2, expected) -> None:
+    f = effect.force(np.array([r]), np.array([rd]), np.array([x2]))[0]
+    assert f[0] == pytest.approx(expected, rel=1e-12, abs=1e-12)
+
+
+def test_hysteretic_force_and_state_rate_by_hand() -> None:
+    hs = HystereticSpring(2e4, 2e-3)
+    model = fx.ForceModel([hs])
+    f, _, _, dz = model.force_and_state_rates(np.array([0.0]), np.array([0.1]), 0.0,
+                                              model.values_of(), np.array([[1e-3]]))
+    assert f[0] == pytest.approx(-20.0, rel=1e-12)  # -k z
+    assert dz[0, 0] == pytest.approx(0.1 - 0.1 * 0.5, rel=1e-12)  # rdot - |rdot| z / z_y
+
+
+# ------------------------------------------------------------------ derivatives
+
+MEMORYLESS = [c for c in EFFECTS.values() if c.n_states == 0]
+
+
+@pytest.mark.parametrize("cls", MEMORYLESS, ids=lambda c: c.name)
+def test_derivatives_match_central_differences(cls, rng: np.random.Generator) -> None:
+    e = cls()  # a term of a fit: the bump stop is rounded, so it has derivatives
+    theta = e.value_vector()
+    n = 300
+    r, rd, x2 = rng.uniform(-0.08, 0.08, n), rng.uniform(-0.8, 0.8, n), rng.uniform(-0.05,
+                                                                                    0.05, n)
+    rd = np.where(np.abs(rd) < 1e-3, 1e-3, rd)  # away from the asymmetric damper's kink
+    f, ds, dp = e.force(r, rd, x2, theta)
+    for k in range(3):
+        h = 1e-7
+        args_p, args_m = [r, rd, x2], [r, rd, x2]
+        args_p[k] = args_p[k] + h
+        args_m[k] = args_m[k] - h
+        fd = (e.force(*args_p, theta)[0] - e.force(*args_m, theta)[0]) / (2 * h)
+        scale = np.abs(ds[:, k]) + 1e-3 * np.max(np.abs(ds[:, k])) + 1e-9
+        assert np.all(np.abs(fd - ds[:, k]) / scale < 1e-4), (cls.name, k)
+    for j in range(theta.size):
+        h = 1e-6 * max(abs(theta[j]), 1e-3)
+        tp, tm = theta.copy(), theta.copy()
+        tp[j] += h
+        tm[j] -= h
+        fd = (e.force(r, rd, x2, tp)[0] - e.force(r, rd, x2, tm)[0]) / (2 * h)
+        roundoff = 1e4 * np.finfo(float).eps * (np.abs(f) + 1.0) / h
+        scale = np.abs(dp[:, j]) + 1e-6 * np.max(np.abs(dp[:, j])) + 1e-12 + roundoff
+        assert np.all(np.abs(fd - dp[:, j]) / scale < 1e-4), (cls.name, e.params[j].name)
+
+
+# ------------------------------------------------------------------ static contribution
+
+
+def test_static_contributions() -> None:
+    r = np.array([-0.06, -0.02, 0.0, 0.03])
+    np.testing.assert_allclose(LinearSpring(24e3).static_force_n(r), -24e3 * r, rtol=1e-14)
+    np.testing.assert_allclose(CouplingSpring(3e3).static_force_n(r, x2=0.01), -30.0)
+    for moving_only in (LinearDamper(1800.0), CoulombFriction(80.0),
+                        AsymmetricDamping(1e3, 3e3), QuadraticDamping(500.0)):
+        np.testing.assert_array_equal(moving_only.static_force_n(r), 0.0)
+    np.testing.assert_allclose(CubicStiffness(2e6).static_force_n(r), -2e6 * r**3, rtol=1e-14)
+    np.testing.assert_allclose(BumpStop(0.04, 1e5).static_force_n(r), [2000.0, 0, 0, 0],
+                               atol=1e-9)
+    # hysteresis loaded slowly from 0: z = z_y (1 - exp(-|r| / z_y)) sign(r)
+    hs = HystereticSpring(2e4, 2e-3)
+    z = np.sign(r) * 2e-3 * (1 - np.exp(-np.abs(r) / 2e-3))
+    np.testing.assert_allclose(hs.static_force_n(r), -2e4 * z, rtol=1e-12, atol=1e-12)
+
+
+def test_parameters_carry_si_units_and_bounds() -> None:
+    for cls in EFFECTS.values():
+        assert cls.description, cls.name
+        for p in cls.params:
+            assert p.unit and p.lower <= p.typical <= p.upper, (cls.name, p.name)
+            assert p.name.endswith(("_n", "_m", "_mps", "_n_per_m", "_ns_per_m", "_n_per_m3",
+                                    "_ns2_per_m2")), p.name
+    assert diagnosis_effects() == ("coulomb_friction", "cubic_stiffness", "bump_stop",
+                                   "asymmetric_damping")
+
+
+def test_values_are_checked_and_round_trip() -> None:
+    e = make_effect("bump_stop", gap_m="0.03", stiffness_n_per_m=2e5)
+    assert e == BumpStop(0.03, 2e5) and e.settings == {"width_m": 0.0}
+    assert make_effect(e.name, **e.to_dict()["params"]) == e
+    assert BumpStop().settings == {"width_m": 1e-3}  # a term of a fit: rounded hinge
+    with pytest.raises(FieldDiagError, match="stiffness_n_per_m"):
+        BumpStop(0.03, 0.0)
+    with pytest.raises(FieldDiagError, match="missing"):
+        make_effect("coulomb_friction")
+    with pytest.raises(FieldDiagError, match="linear_spring|valid effects"):
+        make_effect("linear_spring", suspension_stiffness_n_per_m=1.0)
+
+
+# ------------------------------------------------------------------ a new effect, one class
+
+
+@njit(cache=True)
+def _cubic_damper(r, rd, x2, p, c, dp):  # pragma: no cover - compiled
+    dp[0] = -rd * rd * rd
+    return -p[0] * rd * rd * rd, 0.0, -3.0 * p[0] * rd * rd, 0.0
+
+
+class CubicDamper(Effect):
+    """A throw-away effect: damping that grows with the cube of the rate."""
+
+    name = "throwaway_cubic_damper"
+    description = "cubic damper"
+    diagnosable = True
+    params = (ParamSpec("cubic_damping_ns3_per_m3", "N s^3/m^3", 0.0, math.inf, 1e4, True,
+                        "cubic damping", "drive over sharp bumps", significant=True),)
+    kernel = _cubic_damper
+
+    def speed_bounds(self, values):
+        return 0.0, 3.0 * values[0] * fx.RATE_BOUND_MPS**2, 0.0
+
+
+@pytest.fixture
+def cubic_damper():
+    register_effect(CubicDamper)
+    try:
+        yield CubicDamper
+    finally:
+        unregister_effect(CubicDamper.name)
+
+
+def test_a_new_effect_is_simulated_fitted_and_diagnosed(cubic_damper) -> None:
+    from fielddiag import sim
+    from fielddiag.diagnose.engine import Drive, diagnose_drives
+    from fielddiag.identify.greybox import GreyBoxData, fit_greybox
+
+    c3 = 3e4
+    car = sim.QuarterCarParams()
+    effect = sim.make_effect(CubicDamper.name, cubic_damping_ns3_per_m3=c3)
+    # simulated: the suspension force is the law
+    d = sim.simulate(car, duration_s=40.0, seed=31, road_class="C", effects=(effect,),
+                     sensor=sim.SensorModel(output_rate_hz=200.0, snr_db=40.0))
+    r, rd = d.suspension_extension_m, d.body_vel_mps - d.wheel_vel_mps
+    expect = (-car.suspension_stiffness_n_per_m * r - car.suspension_damping_ns_per_m * rd
+              - c3 * rd**3)
+    np.testing.assert_allclose(d.suspension_force_n, expect, rtol=1e-12, atol=1e-9)
+    assert np.max(np.abs(c3 * rd**3)) > 100.0  # the effect acts (> 100 N at times)
+    # fitted: the grey-box recovers it from the true motion
+    model, truth = fx.model_from_sim(car, [effect])
+    res = fit_greybox(GreyBoxData.from_drive(d, truth=True), model)
+    c3_per_kg = res.per_unit_mass[f"{CubicDamper.name}.cubic_damping_ns3_per_m3"]
+    assert c3_per_kg == pytest.approx(c3 / car.body_mass_kg, rel=1e-3)
+    # diagnosed: named first among every diagnosable effect (the new one included)
+    drive = Drive("drive", "sim", d.sample_rate_hz, 0.0, d.wheel_accel_mps2,
+                  d.body_accel_mps2, 0.0)
+    out = diagnose_drives([drive]).to_dict()
+    assert CubicDamper.name in [c["effects"][0] for c in out["candidates"]]
+    assert out["findings"][0]["effect"] == CubicDamper.name
+    per_kg = out["findings"][0]["parameters"]["cubic_damping_ns3_per_m3_per_kg"]
+    assert per_kg == pytest.approx(c3 / car.body_mass_kg, rel=0.25)
+    assert "cubic damper" in out["findings"][0]["explanation"]
+
+
+def test_effects_with_internal_state_are_simulated_but_not_fitted() -> None:
+    from fielddiag.identify.greybox import GreyBoxData, GreyBoxProblem
+    from fielddiag.sim import QuarterCarParams
+
+    model = fx.linear_model() + HystereticSpring()
+    n = 400
+    data = GreyBoxData(sample_rate_hz=100.0, wheel_disp_m=np.zeros(n), wheel_vel_mps=np.zeros(n),
+                       body_accel_mps2=np.zeros(n))
+    with pytest.raises(FieldDiagError, match="internal state"):
+        GreyBoxProblem(model, [data])
+    with pytest.raises(FieldDiagError, match="internal states"):
+        fx.model_from_sim(QuarterCarParams(), [HystereticSpring(2e4, 2e-3)])
