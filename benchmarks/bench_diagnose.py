@@ -12,11 +12,17 @@ the ratio linear NRMSE / floor (how far the effect stands above the noise: 1.3-2
 small effect). Then the scores: top-1 effect correct, false alarms on linear cases, worst
 parameter error, unexplained found, sensor problems flagged.
 
-Usage: python benchmarks/bench_diagnose.py [NAME ...]
+With ``--reseed N`` every scenario is drawn again with its seed shifted by N (new roads,
+speeds and sensor noise; the effects and their sizes stay), and a per-family table is
+printed: effect family and size (small = near the noise floor), cases, top-1 correct,
+false alarms, nuisance (sensor) problems flagged, outside the library reported unexplained.
+
+Usage: python benchmarks/bench_diagnose.py [--reseed N] [NAME ...]
 """
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 import time
 
@@ -51,8 +57,13 @@ def noise_floor(sc: Scenario, drives: list[Drive]) -> float | None:
     )
 
 
+RESEED = 0
+
+
 def run(name: str, floor: bool = False) -> dict:
     sc = SCENARIOS[name]
+    if RESEED:
+        sc = dataclasses.replace(sc, seed=sc.seed + RESEED)
     before, after = simulate_scenario(sc)
     drives = [
         Drive(
@@ -84,8 +95,45 @@ def run(name: str, floor: bool = False) -> dict:
     }
 
 
+def family(sc: Scenario) -> str:
+    """The row of the per-family table a scenario counts in."""
+    if sc.expected_warnings and not sc.expected_effects:
+        return "nuisance: " + ",".join(sc.expected_warnings)
+    if not sc.expected_effects:
+        return "linear"
+    if sc.expected_effects == ("unexplained",):
+        return "outside the library"
+    return " + ".join(sc.expected_effects) + (" (small)" if sc.small else "")
+
+
+def family_table(rows: list[dict]) -> None:
+    print(f"\n{'family':<44} {'cases':>5}  {'right':>5}  what 'right' means")
+    fams: dict[str, list[dict]] = {}
+    for r in rows:
+        fams.setdefault(family(r["sc"]), []).append(r)
+    for fam, rs in sorted(fams.items()):
+        sc = rs[0]["sc"]
+        if fam == "linear":
+            ok, what = sum(r["out"]["verdict"] == "adequate" for r in rs), "adequate (no alarm)"
+        elif fam.startswith("nuisance"):
+            ok = sum(set(r["sc"].expected_warnings) <= set(r["warnings"]) for r in rs)
+            what = "flagged as a data problem"
+        elif fam == "outside the library":
+            ok, what = sum("unexplained" in r["named"] for r in rs), "reported unexplained"
+        else:
+            ok = sum(bool(r["named"]) and r["named"][0] in sc.expected_effects for r in rs)
+            what = "top-1 effect correct"
+        ratios = [r["ratio"] for r in rs if r["ratio"] is not None]
+        strength = f"; linear/floor {min(ratios):.2f}-{max(ratios):.2f}" if ratios else ""
+        print(f"{fam:<44} {len(rs):>5}  {ok:>5}  {what}{strength}")
+
+
 def main() -> None:
-    names = sys.argv[1:] or list(SCENARIOS)
+    global RESEED
+    args = sys.argv[1:]
+    if args[:1] == ["--reseed"]:
+        RESEED, args = int(args[1]), args[2:]
+    names = args or list(SCENARIOS)
     print(__doc__)
     rows = []
     for name in names:
@@ -134,6 +182,7 @@ def main() -> None:
     )
     print(f"sensor problems flagged   {flagged}/{len(sensors)}")
     print(f"wall time                 {sum(r['wall'] for r in rows):.0f} s for {len(rows)} cases")
+    family_table(rows)
 
 
 if __name__ == "__main__":

@@ -297,28 +297,12 @@ def check_pair_files(
                       added_mass_kg)
 
 
-def partner_in(path: str | os.PathLike, sessions: Sequence[str | os.PathLike]
-               ) -> tuple[DriveHeader | None, DriveHeader, str]:
-    """The partner of the session ``path`` among ``sessions`` (headers read here).
-
-    Returns ``(partner or None, the drive's own header, reason when None)``; unreadable
-    sessions are skipped.
-    """
-    own = read_drive_header(path, fingerprint=False)
-    cands = []
-    for p in sessions:
-        try:
-            cands.append(read_drive_header(p, fingerprint=False))
-        except (FieldDiagError, OSError):  # an unreadable file is never a partner
-            continue
-    partner, why = find_partner(own, cands)
-    return partner, own, why
-
-
 def header_of(summary: object) -> DriveHeader:
     """A :class:`DriveHeader` from anything listing a session (``path``, ``vehicle``,
     ``corner``, ``added_mass_kg``, ``created``; e.g. the dashboard's catalog entries)."""
-    get = summary.__getattribute__
+    def get(name: str) -> object:
+        return getattr(summary, name, None)
+
     return DriveHeader(Path(str(get("path"))), str(get("vehicle") or ""),
                        str(get("corner") or ""), float(get("added_mass_kg") or 0.0),
                        str(get("created") or ""),
