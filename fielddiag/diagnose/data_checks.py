@@ -139,25 +139,50 @@ def _log_residual(model: np.ndarray, meas: np.ndarray, wgt: np.ndarray) -> np.nd
     return np.concatenate([d.real * wgt, d.imag * wgt])
 
 
-def check_gain_change(
+@dataclass(frozen=True)
+class GainFit:
+    """A gain factor between the drives fitted to their transmissibilities.
+
+    ``change`` is gain - 1 of the second drive's body/wheel ratio against the first's,
+    ``std`` its standard deviation (doubled: neighbouring Welch lines correlate), and
+    ``explained`` the share of the between-drive inconsistency of one linear car that the
+    gain removes (1: all of it; a physical difference between the drives changes the
+    shape of T, which a flat gain cannot mimic).
+    """
+
+    change: float
+    std: float
+    explained: float
+
+
+def fit_gain_change(
     transmissibility: list[dict],
     band_hz: tuple[float, float],
     *,
     added_mass_kg: float,
     start: dict[str, float],
     min_coherence: float = 0.8,
-    min_change: float = 0.03,
-) -> DataWarning | None:
-    """A sensor remounted with another gain between the drives.
+) -> GainFit | None:
+    """Fit a gain change of the second drive's transmissibility (see :func:`check_gain_change`).
 
-    Three fits of the linear transmissibility to both drives' measured T (log-complex
-    residual, weighted by coherence): (a) one car for both drives, (b) one car plus a gain
-    factor on the second drive, (c) each drive with its own free linear model (the best a
-    linear model can do). A gain change is reported when the gain is significant and
-    larger than ``min_change``, and it removes most of the inconsistency between the
-    drives that (a) leaves and (c) removes: physics that differs between the drives (a
-    progressive spring pushed into its stiff range by the added mass) changes the shape of
-    T, which a flat gain cannot mimic.
+    Parameters
+    ----------
+    transmissibility : list of dict
+        Two drives' ``freq_hz``, ``measured`` (complex T), ``coherence`` and ``label``.
+    band_hz : (float, float)
+        Lines used [Hz].
+    added_mass_kg : float
+        Mass added for the second drive [kg].
+    start : dict
+        Linear model start values (``sprung_mass_kg``, ``suspension_stiffness_n_per_m``,
+        ``suspension_damping_ns_per_m``, ``coupling_stiffness_n_per_m``).
+    min_coherence : float
+        Lines below it are left out.
+
+    Returns
+    -------
+    GainFit or None
+        None when fewer than 8 lines per drive are usable or the fit is singular.
     """
     from scipy import optimize
 
@@ -174,6 +199,8 @@ def check_gain_change(
         start.get("coupling_stiffness_n_per_m", 0.0)
         / start.get("suspension_stiffness_n_per_m", 2.4e4),
     ]
+    if not np.all(np.isfinite(x0)):
+        return None
 
     def joint(x, with_gain: bool):
         m, k, c = np.exp(x[:3])
@@ -185,8 +212,9 @@ def check_gain_change(
             res.append(_log_residual(model * (g if i == 1 else 1.0), t, wgt))
         return np.concatenate(res)
 
-    fit0 = optimize.least_squares(joint, x0, args=(False,), method="lm")
-    fitg = optimize.least_squares(joint, [*fit0.x, 0.0], args=(True,), method="lm")
+    with np.errstate(all="ignore"):
+        fit0 = optimize.least_squares(joint, x0, args=(False,), method="lm")
+        fitg = optimize.least_squares(joint, [*fit0.x, 0.0], args=(True,), method="lm")
     chi0, chig = float(fit0.fun @ fit0.fun), float(fitg.fun @ fitg.fun)
     chis = 0.0
     for w, t, wgt in lines:  # each drive alone, per unit mass
@@ -195,56 +223,99 @@ def check_gain_change(
             return _log_residual(_t_model(w, np.exp(x[0]), np.exp(x[1]), x[2], 1.0), t, wgt)
 
         xs = [np.log(np.exp(x0[1]) / m0), np.log(np.exp(x0[2]) / m0), 0.0]
-        sol = optimize.least_squares(one, xs, method="lm")
+        with np.errstate(all="ignore"):
+            sol = optimize.least_squares(one, xs, method="lm")
         chis += float(sol.fun @ sol.fun)
     n = fitg.fun.size
     s2 = chig / max(n - 5, 1)
-    jac = fitg.jac
     try:
-        cov = np.linalg.inv(jac.T @ jac) * s2
-        sd = float(np.sqrt(cov[4, 4])) * 2.0  # lines of Welch estimates correlate
+        cov = np.linalg.inv(fitg.jac.T @ fitg.jac) * s2
     except np.linalg.LinAlgError:
         return None
-    log_g = float(fitg.x[4])
-    change = float(np.exp(log_g) - 1.0)
+    sd = float(np.sqrt(cov[4, 4])) * 2.0  # lines of Welch estimates correlate
+    if not np.isfinite(sd):
+        return None
+    change = float(np.exp(fitg.x[4]) - 1.0)
     inconsistency = chi0 - chis
     explained = (chi0 - chig) / inconsistency if inconsistency > 0 else 0.0
-    if abs(change) < min_change or abs(log_g) < 4.0 * sd or explained < 0.7:
+    return GainFit(change, sd * (1.0 + change), float(explained))
+
+
+def check_gain_change(
+    transmissibility: list[dict],
+    band_hz: tuple[float, float],
+    *,
+    added_mass_kg: float,
+    start: dict[str, float],
+    min_coherence: float = 0.8,
+    min_change: float = 0.03,
+) -> DataWarning | None:
+    """A sensor remounted with another gain between the drives.
+
+    Three fits of the linear transmissibility to both drives' measured T (log-complex
+    residual, weighted by coherence): (a) one car for both drives, (b) one car plus a gain
+    factor on the second drive, (c) each drive with its own free linear model (the best a
+    linear model can do). A gain change is reported when the gain is significant and
+    larger than ``min_change``, and it removes most of the inconsistency between the
+    drives that (a) leaves and (c) removes.
+
+    The diagnosis does not use this test as a verdict: it fits the gain as a competing
+    hypothesis (:mod:`fielddiag.diagnose.data_hypotheses`); this stand-alone check is for
+    quick looks at a pair.
+    """
+    fit = fit_gain_change(transmissibility, band_hz, added_mass_kg=added_mass_kg,
+                          start=start, min_coherence=min_coherence)
+    if fit is None:
         return None
-    la, lb = transmissibility[0]["label"], transmissibility[1]["label"]
+    log_sd = fit.std / (1.0 + fit.change)
+    if (abs(fit.change) < min_change or abs(np.log1p(fit.change)) < 4.0 * log_sd
+            or fit.explained < 0.7):
+        return None
+    return gain_warning(transmissibility[0]["label"], transmissibility[1]["label"],
+                        fit.change, fit.std)
+
+
+def gain_warning(label_a: str, label_b: str, change: float, std: float,
+                 moved: str = "") -> DataWarning:
+    """The plain-language warning for a gain change of ``change`` (+- ``std``)."""
     return DataWarning(
         "sensor_gain_changed",
-        f"the {lb} drive's body/wheel transmissibility is {100 * change:+.1f} % off the "
-        f"{la} drive's at every frequency, as if a sensor's gain changed between the drives "
-        "(remounted, other range, other calibration). Check both sensors' calibration and "
-        "mounting: the mass identification is biased by it",
-        lb,
+        f"the {label_b} drive's body/wheel transmissibility is {100 * change:+.1f} +- "
+        f"{100 * std:.1f} % off the {label_a} drive's at every frequency, as if a sensor's "
+        "gain changed between the drives (remounted, other range, other calibration). "
+        f"Check both sensors' calibration and mounting{moved}",
+        label_b,
         "",
         change,
     )
 
 
-def check_time_offset(
+def fit_time_offset(
     transmissibility: list[dict],
     band_hz: tuple[float, float],
     *,
     min_coherence: float = 0.9,
-    min_offset_s: float = 0.001,
-) -> DataWarning | None:
-    """A time offset between the wheel and body channels.
+) -> tuple[float, float] | None:
+    """Fit a wheel/body channel time offset to the transmissibilities' phase error.
 
     A delay tau of the body channel multiplies the measured transmissibility by
-    exp(-j 2 pi f tau): a phase error growing linearly with frequency that no spring,
-    damper or mass produces over a wide band.
+    exp(-j 2 pi f tau): a phase error (measured against the fitted linear model) growing
+    linearly with frequency.
+
+    Returns
+    -------
+    (tau_s, std_s) or None
+        The delay of the body channel [s] (positive: the body channel lags) and its
+        standard deviation (doubled: neighbouring lines correlate); None with fewer than
+        10 usable lines or less than 3 Hz of them.
     """
-    fs_, phs, ws = [], [], []
+    fs_, phs = [], []
     for tr in transmissibility:
         f, ratio = _model_ratio(
             tr["freq_hz"], tr["measured"], tr["model"], tr["coherence"], band_hz, min_coherence
         )
         fs_.append(f)
         phs.append(np.angle(ratio))
-        ws.append(np.ones_like(f))
     f = np.concatenate(fs_)
     ph = np.concatenate(phs)
     if f.size < 10 or np.ptp(f) < 3.0:
@@ -254,17 +325,42 @@ def check_time_offset(
     resid = ph - a @ coef
     dof = max(f.size - 2, 1)
     cov = np.linalg.inv(a.T @ a) * float(resid @ resid) / dof
-    tau, tau_std = float(coef[0]), float(np.sqrt(cov[0, 0]) * 2.0)  # x2: lines correlate
+    return float(coef[0]), float(np.sqrt(cov[0, 0]) * 2.0)
+
+
+def check_time_offset(
+    transmissibility: list[dict],
+    band_hz: tuple[float, float],
+    *,
+    min_coherence: float = 0.9,
+    min_offset_s: float = 0.001,
+) -> DataWarning | None:
+    """A time offset between the wheel and body channels (:func:`fit_time_offset`),
+    reported when it exceeds ``min_offset_s`` and 4 standard deviations.
+
+    The diagnosis fits the offset as a competing hypothesis instead
+    (:mod:`fielddiag.diagnose.data_hypotheses`): asymmetric damping or a compliant top
+    mount also bend the phase, and only held-out data can tell them apart.
+    """
+    fit = fit_time_offset(transmissibility, band_hz, min_coherence=min_coherence)
+    if fit is None:
+        return None
+    tau, tau_std = fit
     if abs(tau) < min_offset_s or abs(tau) < 4.0 * tau_std:
         return None
-    which = "body channel lags" if tau > 0 else "wheel channel lags"
+    return time_offset_warning(tau, tau_std)
+
+
+def time_offset_warning(tau_s: float, std_s: float, moved: str = "") -> DataWarning:
+    """The plain-language warning for a body channel delayed by ``tau_s`` (+- ``std_s``)."""
+    which = "body channel lags" if tau_s > 0 else "wheel channel lags"
     return DataWarning(
         "channel_time_offset",
-        f"the {which} the other by about {1000 * abs(tau):.1f} ms (a phase error growing "
-        "with frequency that no suspension produces). Check that both channels are sampled "
-        "together (same DAQ clock, same filter settings) or correct the offset before "
-        "diagnosing",
+        f"the {which} the other by {1000 * abs(tau_s):.2f} +- {1000 * std_s:.2f} ms (a phase "
+        "error growing with frequency that no suspension produces). Check that both "
+        "channels are sampled together (same DAQ clock, same filter settings)"
+        f"{moved}",
         "",
         "",
-        tau,
+        tau_s,
     )

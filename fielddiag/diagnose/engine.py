@@ -21,7 +21,7 @@ from __future__ import annotations
 import itertools
 import os
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -31,6 +31,16 @@ from scipy import optimize
 from fielddiag import dsp
 from fielddiag.blas import single_threaded_blas
 from fielddiag.diagnose import data_checks
+from fielddiag.diagnose.data_hypotheses import (
+    KINDS as DATA_KINDS,
+)
+from fielddiag.diagnose.data_hypotheses import (
+    DataHypothesis,
+    correct_drives,
+    from_transmissibility,
+    moved_text,
+    residual_scale,
+)
 from fielddiag.diagnose.locate import (
     DepartureMap,
     departure_map,
@@ -158,10 +168,16 @@ def _effect_params(model: ForceModel, effects: Sequence[str]) -> list[tuple[str,
 
 @dataclass
 class _Fit:
-    effects: tuple[str, ...]
+    effects: tuple[str, ...]  # physical effects, then a data hypothesis's kind if any
     result: Any  # GreyBoxResult
     candidate: CandidateFit
     runs: list  # validation runs per drive: (SessionFit, measured, residual, time_s)
+    prepared: Sequence[_Prepared] = ()  # the data it was fitted to (corrected ones for data)
+    data: DataHypothesis | None = None
+
+    @property
+    def physics(self) -> tuple[str, ...]:
+        return tuple(e for e in self.effects if e not in DATA_KINDS)
 
 
 def _values(result) -> tuple[dict[str, float], dict[str, float]]:
@@ -208,33 +224,44 @@ def _grey_fit(
     coupling: bool,
     initial: dict[str, float] | None,
     substeps: int,
+    mass_bounds_kg: tuple[float, float] | None = None,
+    data: DataHypothesis | None = None,
 ) -> _Fit:
+    """Grey-box fit of the linear model plus ``effects`` on the fit part of every drive,
+    scored on the held-out part. With a data hypothesis, ``prepared`` holds the corrected
+    drives and the held-out residuals are returned in the recording's units."""
     model = _model(effects, coupling)
     fits = [p.fit for p in prepared]
     if initial:
         allowed = set(model.param_keys) | {"body_mass_kg"}
         initial = {k: v for k, v in initial.items() if k in allowed}
+    absolute = len({p.fit.added_mass_kg for p in prepared}) > 1
     # trial steps of Levenberg-Marquardt may overflow before being rejected: not news
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-        result = fit_greybox(fits, model, initial=initial, substeps=substeps, max_iterations=40)
+        result = fit_greybox(fits, model, initial=initial, substeps=substeps, max_iterations=40,
+                             mass_bounds_kg=mass_bounds_kg if absolute else None)
         runs = validation_runs(result, [p.val for p in prepared], substeps=substeps)
+    if data is not None:
+        runs = [(sf, meas * k, res * k, t) for i, (sf, meas, res, t) in enumerate(runs)
+                for k in [residual_scale(data, i, len(runs))]]
     res_val = np.concatenate([r[2] for r in runs])
     meas_val = np.concatenate([r[1] for r in runs])
     vals, stds = _values(result)
     fit_sessions = result.fit_sessions()
     nr_fit = float(np.sqrt(np.mean([s.nrmse**2 for s in fit_sessions])))
+    names = (*effects, data.kind) if data is not None else tuple(effects)
     cand = CandidateFit(
-        effects=tuple(effects),
+        effects=names,
         values=vals,
         std=stds,
         nrmse_fit=nr_fit,
         nrmse_validation=nrmse(res_val, meas_val),
         residual_validation=res_val,
-        n_params=model.n_params,
+        n_params=model.n_params + (1 if data is not None else 0),
         at_bound=_pinned(result, model, effects),
-        extra={"model": model},
+        extra={"model": model, "data": data},
     )
-    return _Fit(tuple(effects), result, cand, runs)
+    return _Fit(names, result, cand, runs, prepared, data)
 
 
 def _initial_from(fit: _Fit) -> dict[str, float]:
@@ -381,16 +408,26 @@ class Diagnosis:
     unexplained: dict | None
     warnings: list[data_checks.DataWarning]
     residual_psd: dict[str, list[float]] = field(default_factory=dict)
-
-    @property
-    def blocked(self) -> bool:
-        """A data problem makes any suspension finding suspect."""
-        return any(w.kind in BLOCKING_WARNINGS for w in self.warnings)
+    ride_height: dict | None = None  # passive sag vs restored, when an effect acts on position
+    linear_inadequate: str | None = None  # words when the linear model is hopeless
 
     @property
     def verdict(self) -> str:
-        missing = self.chosen is not self.baseline or self.unexplained is not None
-        return "missing_physics" if missing and not self.blocked else "adequate"
+        """``missing_physics`` when a physical effect is chosen or structure is left;
+        a data problem alone leaves the suspension ``adequate``."""
+        missing = bool(self.chosen.physics) or self.unexplained is not None
+        return "missing_physics" if missing else "adequate"
+
+    def data_problems(self) -> list[data_checks.DataWarning]:
+        """The data hypotheses the held-out comparison chose, as warnings with sizes."""
+        hyp = self.chosen.data
+        if hyp is None:
+            return []
+        moved = self.chosen.candidate.extra.get("moved", "")
+        if hyp.kind == "sensor_gain_changed":
+            return [data_checks.gain_warning(self.drives[0].label, self.drives[-1].label,
+                                             hyp.value, hyp.std, moved)]
+        return [data_checks.time_offset_warning(hyp.value, hyp.std, moved)]
 
     def _finding(self, effect: str) -> dict:
         c = self.chosen.candidate
@@ -410,7 +447,8 @@ class Diagnosis:
             "shape": shape,
             "std": stds,
             "where": self._where(),
-            "explanation": explain(effect, params, base.values, c.values, self.mode),
+            "explanation": explain(effect, params, {} if self.linear_inadequate else base.values,
+                                   c.values, self.mode),
         }
 
     def plot_data(self, max_points: int = 1500) -> dict:
@@ -452,27 +490,16 @@ class Diagnosis:
 
     def to_dict(self) -> dict:
         base, chosen = self.baseline.candidate, self.chosen.candidate
-        adequate = self.verdict == "adequate"
-        findings = [] if chosen is base else [self._finding(e) for e in chosen.effects]
+        findings = [self._finding(e) for e in self.chosen.physics]
         if self.unexplained is not None:
             findings.append(
                 {**self.unexplained, "where": {**self._where(), **self.unexplained["where"]}}
             )
         # drives that do not behave like one corner with the mass added: a competing
         # hypothesis that a finding (a progressive spring, friction...) explains
-        warnings = [w.to_dict() for w in self.warnings
+        warnings = [w.to_dict() for w in [*self.warnings, *self.data_problems()]
                     if not (w.kind == "pair_inconsistent" and findings)]
-        if self.blocked and findings:
-            withheld = ", ".join(f["effect"] for f in findings)
-            warnings.append(
-                {
-                    "kind": "findings_withheld",
-                    "message": f"the mismatch ({withheld}) is not blamed on the suspension while "
-                    "the data problems above stand; fix the recording and diagnose again",
-                }
-            )
-            findings = []
-        aug = base if adequate or chosen is base else chosen
+        aug = base if chosen is base else chosen
         return {
             "mode": self.mode,
             "verdict": self.verdict,
@@ -509,6 +536,13 @@ class Diagnosis:
                 for d in self.drives
             ],
             "holdout": "last 30 % of every drive",
+            "ride_height": self.ride_height,
+            "data_problems": [
+                {"kind": w.kind, "value": w.value,
+                 "std": self.chosen.data.std if self.chosen.data else None}
+                for w in self.data_problems()
+            ],
+            "linear_model_adequate": self.linear_inadequate is None,
             **self.plot_data(),
         }
 
@@ -583,9 +617,20 @@ def _data_warnings(drives: Sequence[Drive]) -> list[data_checks.DataWarning]:
     return out
 
 
-def _transmissibility_warnings(drives: Sequence[Drive]) -> list[data_checks.DataWarning]:
-    """Gain change between drives and channel time offset, from the identification's
-    transmissibilities against its fitted linear model."""
+@dataclass
+class _FrequencyDomain:
+    """What the linear frequency-domain identification of a pair tells the diagnosis."""
+
+    linear: dict[str, float]  # sprung_mass_kg, stiffness, damping, coupling (SI)
+    warnings: list[data_checks.DataWarning]
+    hypotheses: list[DataHypothesis]
+
+
+def _frequency_domain(drives: Sequence[Drive]) -> _FrequencyDomain:
+    """Identify the pair in the frequency domain (:func:`fielddiag.identify.identify_recordings`):
+    its linear values start the grey-box fit and bound its mass, its transmissibilities
+    estimate the data hypotheses (a gain change between the drives, a channel time offset)
+    that then compete with the physics."""
     from fielddiag.identify import Recording, identify_recordings
     from fielddiag.identify.pipeline import PAIR_INCONSISTENT
 
@@ -599,16 +644,16 @@ def _transmissibility_warnings(drives: Sequence[Drive]) -> list[data_checks.Data
         )
         for d in drives
     ]
+    dm = drives[1].added_mass_kg - drives[0].added_mass_kg
     try:
-        ident = identify_recordings(
-            recs[0], recs[1], drives[1].added_mass_kg - drives[0].added_mass_kg
-        )
+        ident = identify_recordings(recs[0], recs[1], dm)
     except FieldDiagError as exc:
         # Only a lack of excitation is a problem of the data; the linear identification
         # also refuses when the physics is not linear, which is the diagnosis's own subject.
         if "excitation" in str(exc):
-            return [data_checks.DataWarning("too_little_excitation", str(exc))]
-        return []
+            return _FrequencyDomain({}, [data_checks.DataWarning("too_little_excitation",
+                                                                 str(exc))], [])
+        return _FrequencyDomain({}, [], [])
     trs = [
         {
             "freq_hz": tr.freq_hz,
@@ -620,8 +665,8 @@ def _transmissibility_warnings(drives: Sequence[Drive]) -> list[data_checks.Data
         for tr in ident.transmissibility
     ]
     band = (ident.band_hz.low_hz, ident.band_hz.high_hz)
-    start = {
-        k: getattr(ident, k).value
+    linear = {
+        k: float(getattr(ident, k).value)
         for k in (
             "sprung_mass_kg",
             "suspension_stiffness_n_per_m",
@@ -629,18 +674,44 @@ def _transmissibility_warnings(drives: Sequence[Drive]) -> list[data_checks.Data
             "coupling_stiffness_n_per_m",
         )
     }
-    dm = drives[1].added_mass_kg - drives[0].added_mass_kg
-    found = [
-        data_checks.check_gain_change(trs, band, added_mass_kg=dm, start=start),
-        data_checks.check_time_offset(trs, band),
-    ]
-    found += [data_checks.DataWarning("pair_inconsistent", w) for w in ident.warnings
-              if w.startswith(PAIR_INCONSISTENT)]
-    return [w for w in found if w is not None]
+    warnings = [data_checks.DataWarning("pair_inconsistent", w) for w in ident.warnings
+                if w.startswith(PAIR_INCONSISTENT)]
+    return _FrequencyDomain(linear, warnings, from_transmissibility(trs, band, dm, linear))
 
 
-#: Data problems that make any physics found suspect: findings are withheld.
-BLOCKING_WARNINGS = ("sensor_gain_changed", "channel_time_offset", "clipping")
+def _linear_start(fd: _FrequencyDomain | None) -> tuple[dict[str, float] | None,
+                                                        tuple[float, float] | None]:
+    """Start values and sprung-mass range of the linear grey-box fit from the frequency
+    domain: the mass may move a factor of 4 either way, never to absurd values."""
+    if fd is None or not fd.linear:
+        return None, (5.0, 2.0e4)
+    m = fd.linear["sprung_mass_kg"]
+    if not (np.isfinite(m) and m > 0):
+        return None, (5.0, 2.0e4)
+    lin = fd.linear
+    start = {"body_mass_kg": m,
+             "linear_spring.suspension_stiffness_n_per_m": lin["suspension_stiffness_n_per_m"],
+             "linear_damper.suspension_damping_ns_per_m": lin["suspension_damping_ns_per_m"]}
+    start = {k: v for k, v in start.items() if np.isfinite(v) and v > 0}
+    return start, (max(m / 4.0, 1.0), min(m * 4.0, 1e5))
+
+
+def _linear_hopeless(base: _Fit, bounds: tuple[float, float] | None) -> str | None:
+    """Words instead of absurd numbers when the linear model cannot describe the pair."""
+    m = base.candidate.values.get("body_mass_kg")
+    if m is None:
+        return None
+    ms = base.candidate.std.get("body_mass_kg", np.nan)
+    at_bound = bounds is not None and (m <= bounds[0] * 1.02 or m >= bounds[1] * 0.98)
+    vague = not np.isfinite(ms) or ms > 0.5 * m
+    if not (at_bound or vague):
+        return None
+    return (
+        "the linear model cannot describe these drives with one sprung mass: the body does "
+        "not respond to the added mass the way a linear spring and damper would "
+        f"(the fitted mass runs to {'its limit' if at_bound else 'no definite value'}). "
+        "Its values are not meaningful; read the suspension from the findings"
+    )
 
 
 def _locate(
@@ -704,7 +775,8 @@ def _departure(
         for part, flag in ((p.fit, False), (p.val, True)):
             r, rdot, x2, a2 = _states(part)
             g = GRAVITY if "body_mass_kg" in vals else 0.0
-            r = r + _model_static_offset(model, th, part.added_mass_kg * g)
+            load = 0.0 if part.ride_height_restored else part.added_mass_kg * g
+            r = r + _model_static_offset(model, th, load)
             f, _, _ = model.force(r, rdot, x2, th)
             rs.append(r)
             vs.append(rdot)
@@ -854,18 +926,24 @@ def diagnose_drives(
     band, rate = _band_and_rate(drives, band_hz, holdout_fraction, analysis_rate_hz)
     say("checking the data")
     warnings = _data_warnings(drives)
-    if mode == "pair":
-        warnings += _transmissibility_warnings(drives)
+    fd = _frequency_domain(drives) if mode == "pair" else None
+    if fd is not None:
+        warnings += fd.warnings
     prepared = [_prepare(d, band, rate, holdout_fraction) for d in drives]
     fit_rate = prepared[0].full.sample_rate_hz
 
     say("fitting the linear model")
-    base = _grey_fit((), prepared, True, None, substeps=2)
+    start, mass_bounds = _linear_start(fd)
+    base = _grey_fit((), prepared, True, start, 2, mass_bounds)
     k3 = base.candidate.values.get("coupling_spring.coupling_stiffness_n_per_m", 0.0)
     k3s = base.candidate.std.get("coupling_spring.coupling_stiffness_n_per_m", np.inf)
     coupling = bool(abs(k3) > 4.0 * k3s)
     if not coupling:
-        base = _grey_fit((), prepared, False, _initial_from(base), substeps=2)
+        base = _grey_fit((), prepared, False, _initial_from(base), 2, mass_bounds)
+    hopeless = _linear_hopeless(base, mass_bounds) if mode == "pair" else None
+    if hopeless:
+        say("  " + hopeless)
+        warnings.append(data_checks.DataWarning("linear_model_inadequate", hopeless))
     windows, exband, psd = _locate(base, prepared, fit_rate)
 
     say("testing each effect against the residual's signature")
@@ -886,22 +964,22 @@ def diagnose_drives(
         screening["+".join(combo)] = {"gain": gain, "t": t}
     fits = [base]
 
-    def grey(combo: tuple[str, ...]) -> _Fit | None:
-        say(f"fitting the model with {' + '.join(combo)}")
-        start = ee_fits[combo].values if combo in ee_fits else _initial_from(base)
+    def grey(combo: tuple[str, ...], on: Sequence[_Prepared] = prepared,
+             start: dict[str, float] | None = None,
+             data: DataHypothesis | None = None) -> _Fit | None:
+        what = " + ".join(combo) if combo else "the linear model"
+        say(f"fitting {what}" + (f" to drives corrected for a {_DATA_LABEL[data.kind]}"
+                                 if data is not None else ""))
+        if start is None:
+            start = ee_fits[combo].values if combo in ee_fits else _initial_from(base)
         try:
-            return _grey_fit(combo, prepared, coupling, start, substeps=2)
+            return _grey_fit(combo, on, coupling, start, 2, mass_bounds, data)
         except (FieldDiagError, np.linalg.LinAlgError, FloatingPointError) as exc:
-            say(f"  {' + '.join(combo)} could not be fitted: {exc}")
+            say(f"  {what} could not be fitted: {exc}")
             return None
 
     # every single effect gets the full fit (started from its signature fit); pairs only
     # of the single effects that predict held-out data better than the linear model
-    if any(w.kind in BLOCKING_WARNINGS for w in warnings):
-        # the data are known bad (clipped, misaligned, rescaled): findings would be
-        # withheld anyway, and fitting effects to corrupted data only wastes time
-        say("data problems found: effects are not fitted")
-        effects = ()
     singles = [f for f in (grey((e,)) for e in effects) if f is not None]
     fits += singles
     useful = sorted(
@@ -920,10 +998,51 @@ def diagnose_drives(
         f = grey(combo)
         if f is not None:
             fits.append(f)
+    physics = select_model(base.candidate, [f.candidate for f in fits[1:]])
+    physics_fit = next(f for f in fits if f.candidate is physics.chosen)
+
+    # data problems compete with the physics: each is corrected and the models refitted
+    for hyp in fd.hypotheses if fd is not None else ():
+        say(f"testing a {_DATA_LABEL[hyp.kind]} ({_data_size(hyp)}) against the physics")
+        on = [_prepare(d, band, rate, holdout_fraction) for d in correct_drives(drives, hyp)]
+        lin = grey((), on, _initial_from(base), hyp)
+        for _ in range(2 if hyp.kind == "channel_time_offset" else 0):
+            if lin is None:
+                break
+            # the transmissibility's phase slope is measured against a linear model that
+            # absorbed part of the delay: refine it on the fit part of the corrected drives
+            step = _residual_delay_s(lin, substeps=2)
+            if abs(step) <= hyp.std:
+                break
+            hyp = replace(hyp, value=hyp.value + step)
+            say(f"  refined to {_data_size(hyp)}")
+            on = [_prepare(d, band, rate, holdout_fraction)
+                  for d in correct_drives(drives, hyp)]
+            lin = grey((), on, _initial_from(lin), hyp)
+        if lin is None:
+            continue
+        lin.candidate.extra["moved"] = moved_text(
+            _linear_summary(base.candidate.values, mode), _linear_summary(lin.candidate.values,
+                                                                          mode))
+        fits.append(lin)
+        if physics_fit is not base:
+            both = grey(physics_fit.effects, on, _initial_from(physics_fit), hyp)
+            if both is not None:
+                both.candidate.extra["moved"] = lin.candidate.extra["moved"]
+                fits.append(both)
     sel = select_model(base.candidate, [f.candidate for f in fits[1:]])
     chosen = next(f for f in fits if f.candidate is sel.chosen)
+    if chosen.physics and chosen.physics != physics_fit.physics and chosen.data is not None:
+        # a data problem plus physics the uncorrected data did not choose: fine, but say so
+        say(f"  with the {_DATA_LABEL[chosen.data.kind]} corrected: "
+            f"{' + '.join(chosen.physics)}")
+    ride = None
+    if mode == "pair" and chosen.physics and _acts_on_position(chosen):
+        chosen, ride = _ride_height(chosen, grey, say)
+        if ride is not None and ride["assumed"] == "restored":
+            fits.append(chosen)
     say("looking for structure no effect explains")
-    unexplained, _ = _unexplained(chosen, prepared, coupling, base, say, known=tried)
+    unexplained, _ = _unexplained(chosen, chosen.prepared, coupling, base, say, known=tried)
     # where the restoring force departs from the *linear* surface (what the findings fix)
     r, v, dep, _ = _departure(base, prepared, coupling)
     dmap = departure_map(r, v, dep, bins=12)
@@ -934,7 +1053,8 @@ def diagnose_drives(
         band_hz=band,
         baseline=base,
         chosen=chosen,
-        comparison=sel.comparison,
+        comparison=sel.comparison if chosen.candidate is sel.chosen else compare(
+            base.candidate, chosen.candidate),
         fits=fits,
         screening=screening,
         windows=windows,
@@ -944,7 +1064,84 @@ def diagnose_drives(
         unexplained=unexplained,
         warnings=warnings,
         residual_psd=psd,
+        ride_height=ride,
+        linear_inadequate=hopeless,
     )
+
+
+_DATA_LABEL = {
+    "sensor_gain_changed": "sensor gain change between the drives",
+    "channel_time_offset": "time offset between the wheel and body channels",
+}
+
+
+def _data_size(hyp: DataHypothesis) -> str:
+    if hyp.kind == "channel_time_offset":
+        return f"{1000 * hyp.value:+.2f} +- {1000 * hyp.std:.2f} ms"
+    return f"{100 * hyp.value:+.1f} +- {100 * hyp.std:.1f} %"
+
+
+def _residual_delay_s(fit: _Fit, substeps: int) -> float:
+    """Delay of the recorded body acceleration against the fitted model's simulation on
+    the fit part of every drive (least squares on ``m(t) = s(t - tau)``, linearised)."""
+    num = den = 0.0
+    for sf, measured, residual, _t in validation_runs(fit.result, [p.fit for p in fit.prepared],
+                                                      substeps=substeps):
+        sim = measured - residual
+        ds = np.gradient(sim) * sf.sample_rate_hz
+        num += float(residual @ ds)
+        den += float(ds @ ds)
+    return -num / den if den > 0 else 0.0
+
+
+def _acts_on_position(fit: _Fit) -> bool:
+    """Whether the chosen physics depends on where the suspension sits (its static force
+    is not linear in the travel): then passive sag and restored ride height differ."""
+    model = fit.candidate.extra["model"]
+    vals = fit.candidate.values
+    th = np.array([vals.get(k, 0.0) for k in model.param_keys])
+    r = np.linspace(-0.06, 0.06, 25)
+    f = np.array([model.force(x, 0.0, x, th)[0][0] for x in r])
+    line = np.polyval(np.polyfit(r, f, 1), r)
+    return bool(np.max(np.abs(f - line)) > 1e-3 * max(np.max(np.abs(f)), 1e-9))
+
+
+def _ride_height(chosen: _Fit, grey: Callable[..., _Fit | None],
+                 say: Callable[[str], None]) -> tuple[_Fit, dict | None]:
+    """Passive sag (the assumption) against a restored ride height for the loaded drive.
+
+    A self-levelling suspension, or a technician re-setting the ride height after adding
+    the mass, makes the loaded drive move about the unloaded deflection; a
+    position-dependent effect (a bump stop, a progressive spring) then acts at other
+    travels than under passive sag. Both are fitted; the held-out data decide.
+    """
+    say("testing passive sag against a restored ride height")
+    on = [replace(p, fit=replace(p.fit, ride_height_restored=p.fit.added_mass_kg > 0),
+                  val=replace(p.val, ride_height_restored=p.val.added_mass_kg > 0),
+                  full=replace(p.full, ride_height_restored=p.full.added_mass_kg > 0))
+          for p in chosen.prepared]
+    alt = grey(chosen.physics, on, _initial_from(chosen), chosen.data)
+    if alt is None:
+        return chosen, None
+    cmp = compare(chosen.candidate, alt.candidate)
+    restored = cmp.t >= 3.0 and cmp.relative_gain > 0 and alt.candidate.physical
+    back = compare(alt.candidate, chosen.candidate)
+    if restored:
+        words = ("the data support a ride height restored after the mass was added "
+                 f"(self-levelling or re-set; t = {cmp.t:.1f} against passive sag): the "
+                 "effects are given about the unloaded ride height, which both drives share")
+    elif back.t >= 3.0:
+        words = ("the data support passive sag (the added mass lowered the body; t = "
+                 f"{back.t:.1f} against a restored ride height): the effects are given about "
+                 "the unloaded ride height")
+    else:
+        words = ("assumed passive sag (the added mass lowers the body); a restored ride "
+                 "height fits as well, so the travel at which the effects act is uncertain "
+                 "by the sag under the added mass")
+    say("  " + words)
+    ride = {"assumed": "restored" if restored else "passive_sag",
+            "t_restored_vs_sag": float(cmp.t), "message": words}
+    return (alt if restored else chosen), ride
 
 
 def diagnose_sessions(

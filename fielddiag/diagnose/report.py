@@ -79,9 +79,15 @@ def format_summary(out: dict) -> str:
     if mode != "rig":
         if out["verdict"] != "adequate" and aug and out["findings"]:
             lines.append("  suspension, fitted with the findings: " + _fmt_model(aug, aug_std))
-            if lin:
+            if lin and out.get("linear_model_adequate", True):
                 lines.append("    (the linear model alone, biased by what it leaves out: "
                              + _fmt_model(lin, lin_std) + ")")
+            elif lin:
+                lines.append("    (the linear model alone has no meaningful values here: "
+                             "see the warning below)")
+        elif lin and not out.get("linear_model_adequate", True):
+            lines.append("  suspension, linear model: no meaningful values (see the warning "
+                         "below)")
         elif lin:
             lines.append("  suspension, linear model: " + _fmt_model(lin, lin_std))
     if "parameters" in out and mode == "rig":
@@ -91,6 +97,9 @@ def format_summary(out: dict) -> str:
             for key, name, unit in (("stiffness", "stiffness", p["stiffness"]["unit"]),
                                     ("damping", "damping", p["damping"]["unit"]),
                                     ("moving_mass_kg", "moving mass", "kg"))))
+    ride = out.get("ride_height")
+    if ride:
+        lines.append(f"  ride height: {ride['message']}")
     for w in out.get("warnings", []):
         lines.append(f"  WARNING ({w['kind']}): {w['message']}")
     return "\n".join(lines)

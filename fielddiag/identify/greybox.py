@@ -142,6 +142,7 @@ def fit_greybox(
     stage_xtol: float = 1e-3,
     callback: Any = None,
     solver: str = "lm",
+    mass_bounds_kg: tuple[float, float] | None = None,
 ) -> GreyBoxResult:
     """Fit the model to one or more sessions by Levenberg-Marquardt on sensitivities.
 
@@ -189,6 +190,8 @@ def fit_greybox(
         ``"lm"`` (:func:`~fielddiag.identify.greybox_solver.levenberg_marquardt`) or
         ``"trf"`` (``scipy.optimize.least_squares``, same Jacobian), see the measurement in
         :mod:`fielddiag.identify.greybox_solver`.
+    mass_bounds_kg : (float, float) or None
+        Range of the sprung mass in absolute mode (see :class:`GreyBoxProblem`).
 
     Returns
     -------
@@ -204,7 +207,7 @@ def fit_greybox(
     model = model or linear_model()
     prob = GreyBoxProblem(model, data, absolute=absolute, fixed=fixed,
                           body_mass_kg=body_mass_kg, fit_initial_state=fit_initial_state,
-                          substeps=substeps)
+                          substeps=substeps, mass_bounds_kg=mass_bounds_kg)
     initial = dict(initial or {})
     th0, m0 = prob.equation_error_start()
     if prob.absolute:
@@ -471,7 +474,8 @@ def validation_runs(result: GreyBoxResult, data: Sequence[GreyBoxData], *,
             sample_rate_hz=float(d.sample_rate_hz), nrmse=nrmse(lm.residual, pr.measured),
             residual_rms_mps2=float(np.sqrt(np.mean(lm.residual**2))),
             initial_offset_m=float(lm.x[0] * sc[0]), initial_velocity_mps=float(lm.x[1] * sc[1])),
-            np.asarray(pr.measured), np.asarray(lm.residual),
+            # the solver's residual is simulated - measured; the runs hold measured - simulated
+            np.asarray(pr.measured), -np.asarray(lm.residual),
             d.start_s + (np.arange(len(lm.residual)) + (pr.keep.start or 0)) / d.sample_rate_hz))
     return out
 

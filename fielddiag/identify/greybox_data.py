@@ -40,6 +40,10 @@ class GreyBoxData:
         full-band data (simulator truth).
     start_s : float
         Time of the first sample in the recording.
+    ride_height_restored : bool
+        The added mass's weight is carried by a levelling system (self-levelling
+        suspension, or the ride height re-set by the technician): the drive moves about
+        the unloaded static deflection instead of sagging by the added mass's weight.
     """
 
     sample_rate_hz: float
@@ -52,6 +56,7 @@ class GreyBoxData:
     body_vel_mps: np.ndarray | None = None
     band_hz: tuple[float, float] | None = None
     start_s: float = 0.0
+    ride_height_restored: bool = False
 
     def __post_init__(self) -> None:
         n = np.asarray(self.body_accel_mps2).size

@@ -68,6 +68,10 @@ class GreyBoxProblem:
         load a session with added mass (``dM g / (M2 + dM)`` per unit mass).
     fit_initial_state : bool
         Fit each session's initial body offset and velocity (two nuisance parameters).
+    mass_bounds_kg : (float, float) or None
+        Range of the fitted sprung mass in absolute mode [kg]; None: 1 g to 1e9 kg
+        (practically free). A bounded range keeps a model that cannot describe the data
+        from running off to absurd masses.
     substeps : int
         RK4 steps per sample interval.
     trim_s : float or None
@@ -86,6 +90,7 @@ class GreyBoxProblem:
         fit_initial_state: bool = True,
         substeps: int = 1,
         trim_s: float | None = None,
+        mass_bounds_kg: tuple[float, float] | None = None,
     ) -> None:
         if not data:
             raise FieldDiagError("give at least one session to fit")
@@ -109,6 +114,10 @@ class GreyBoxProblem:
             raise FieldDiagError(
                 "sessions with different added masses need the absolute fit (absolute=True)")
         self.absolute = bool(absolute)
+        self.mass_bounds_kg = (1e-3, 1e9) if mass_bounds_kg is None else (
+            float(mass_bounds_kg[0]), float(mass_bounds_kg[1]))
+        if not 0 < self.mass_bounds_kg[0] < self.mass_bounds_kg[1]:
+            raise FieldDiagError(f"mass_bounds_kg={mass_bounds_kg!r}: give 0 < low < high")
         self.body_mass_guess_kg = body_mass_kg
         self.substeps = int(substeps)
         if self.substeps < 1:
@@ -155,7 +164,7 @@ class GreyBoxProblem:
     # ------------------------------------------------------------------ parameter maps
     def _mass_for_unit(self, d: GreyBoxData) -> tuple[float, float]:
         """(mass, load) of a session in per-unit-mass mode."""
-        if d.added_mass_kg and self.body_mass_guess_kg:
+        if d.added_mass_kg and self.body_mass_guess_kg and not d.ride_height_restored:
             return 1.0, GRAVITY_MPS2 * d.added_mass_kg / (self.body_mass_guess_kg
                                                            + d.added_mass_kg)
         return 1.0, 0.0
@@ -188,8 +197,8 @@ class GreyBoxProblem:
         lo = [self.model.lower[self.free_model]]
         hi = [self.model.upper[self.free_model]]
         if self.has_mass:  # fitted as the inverse mass 1/M2 [1/kg] (nearly linear)
-            lo.append([1e-9])
-            hi.append([1e3])
+            lo.append([1.0 / self.mass_bounds_kg[1]])
+            hi.append([1.0 / self.mass_bounds_kg[0]])
         if self.fit_initial_state:
             lo.append(np.full(2 * len(self.data), -np.inf))
             hi.append(np.full(2 * len(self.data), np.inf))
@@ -207,7 +216,7 @@ class GreyBoxProblem:
             d = pr.data
             if self.absolute:
                 m_tot = mass + d.added_mass_kg
-                load = d.added_mass_kg * GRAVITY_MPS2
+                load = 0.0 if d.ride_height_restored else d.added_mass_kg * GRAVITY_MPS2
                 theta_abs = np.where(self.scaled, theta_u * mass, theta_u)
             else:
                 m_tot, load = self._mass_for_unit(d)

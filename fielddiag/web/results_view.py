@@ -526,8 +526,10 @@ def _linear_parameters_table(result: Mapping[str, Any]) -> None:
     rows = []
     for key, value in refit.items():
         name, unit = model_parameter(key)
+        meaningful = result.get("linear_model_adequate", True)
         rows.append({"k": f"{name} [{unit}]" if unit else name,
-                     "alone": pm(alone.get(key), alone_std.get(key)),
+                     "alone": pm(alone.get(key), alone_std.get(key)) if meaningful
+                     else "not meaningful",
                      "refit": pm(value, refit_std.get(key))})
     ui.label("Linear part of the model: the linear model alone, and refitted with the "
              "findings").classes("text-base font-semibold")

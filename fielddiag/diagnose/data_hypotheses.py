@@ -1,0 +1,149 @@
+"""Problems of the recording as hypotheses that compete with the suspension's physics.
+
+A sensor whose gain changed between the drives, or a body channel delayed against the
+wheel channel, distorts the comparison of model and recording just as missing physics
+does. Which explains the recording is decided the same way for both: each data problem
+is estimated (from the before/after transmissibilities, with its standard deviation),
+the drives are corrected for it, the models are fitted again to the corrected drives,
+and the corrected model competes on the held-out data with the physical candidates
+(:func:`fielddiag.diagnose.selection.select_model`). A data problem is reported only
+when modelling it predicts unseen data better than physics does, and it never hides a
+physical finding: the two can be chosen together.
+
+The residuals of a corrected model are compared in the units of the recording: a gain
+``g`` on the second drive's body channel makes its residual ``g`` times the corrected
+one; a time shift of a few milliseconds leaves the block mean squares of the residual
+unchanged.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+#: Kinds of data hypotheses (their names in ``Diagnosis.to_dict()['warnings']``).
+GAIN_CHANGE = "sensor_gain_changed"
+TIME_OFFSET = "channel_time_offset"
+KINDS = (GAIN_CHANGE, TIME_OFFSET)
+
+#: A hypothesis is fitted only when its estimate is this many standard deviations from
+#: zero (a cheap pre-selection: the held-out comparison decides whether it is reported).
+MIN_Z = 2.0
+#: ... and at least this large (below it no recording would be worth correcting).
+MIN_GAIN_CHANGE = 0.003
+MIN_TIME_OFFSET_S = 2e-4
+
+
+@dataclass(frozen=True)
+class DataHypothesis:
+    """One data problem with its estimated size.
+
+    Attributes
+    ----------
+    kind : str
+        :data:`GAIN_CHANGE` (``value`` = gain - 1 of the second drive's body/wheel ratio)
+        or :data:`TIME_OFFSET` (``value`` = delay of the body channel [s], positive: the
+        body channel lags).
+    value, std : float
+        The estimate and its standard deviation.
+    """
+
+    kind: str
+    value: float
+    std: float
+
+    @property
+    def z(self) -> float:
+        return abs(self.value) / self.std if self.std > 0 else np.inf
+
+
+def from_transmissibility(trs: list[dict], band_hz: tuple[float, float],
+                          added_mass_kg: float, start: dict[str, float]) -> list[DataHypothesis]:
+    """Data hypotheses worth fitting, estimated from two drives' transmissibilities.
+
+    Parameters
+    ----------
+    trs : list of dict
+        Before and after transmissibilities (``freq_hz``, ``measured``, ``model``,
+        ``coherence``, ``label``) from the linear identification.
+    band_hz : (float, float)
+        Band of the identification [Hz].
+    added_mass_kg : float
+        Mass added for the second drive [kg].
+    start : dict
+        The identification's linear values (start of the gain fit).
+
+    Returns
+    -------
+    list of DataHypothesis
+        Those at least :data:`MIN_Z` standard deviations from zero and above the minimum
+        sizes; empty when none is.
+    """
+    from fielddiag.diagnose import data_checks
+
+    out = []
+    g = data_checks.fit_gain_change(trs, band_hz, added_mass_kg=added_mass_kg, start=start)
+    if g is not None and abs(g.change) >= MIN_GAIN_CHANGE and abs(g.change) >= MIN_Z * g.std:
+        out.append(DataHypothesis(GAIN_CHANGE, g.change, g.std))
+    tau = data_checks.fit_time_offset(trs, band_hz)
+    if tau is not None and abs(tau[0]) >= MIN_TIME_OFFSET_S and abs(tau[0]) >= MIN_Z * tau[1]:
+        out.append(DataHypothesis(TIME_OFFSET, tau[0], tau[1]))
+    return out
+
+
+def shift_signal(x: np.ndarray, shift_samples: float) -> np.ndarray:
+    """``x`` advanced by a (fractional) number of samples: ``y[n] = x[n + shift]``.
+
+    By a linear phase in the frequency domain, after removing the mean and padding to
+    twice the length so the ends do not wrap into each other.
+    """
+    x = np.asarray(x, float)
+    mean = float(np.mean(x))
+    n = x.size
+    spec = np.fft.rfft(x - mean, 2 * n)
+    f = np.fft.rfftfreq(2 * n)
+    return np.fft.irfft(spec * np.exp(2j * np.pi * f * shift_samples), 2 * n)[:n] + mean
+
+
+def correct_drives(drives: list[Any], hyp: DataHypothesis) -> list[Any]:
+    """The drives with the data problem undone (a gain divided out of the second drive's
+    body channel, or the body channel moved back by the delay).
+
+    ``drives`` are :class:`fielddiag.diagnose.engine.Drive`-like dataclasses with
+    ``body_accel_mps2`` and ``sample_rate_hz``.
+    """
+    if hyp.kind == GAIN_CHANGE:
+        last = drives[-1]
+        return [*drives[:-1],
+                replace(last, body_accel_mps2=last.body_accel_mps2 / (1.0 + hyp.value))]
+    if hyp.kind == TIME_OFFSET:
+        return [replace(d, body_accel_mps2=shift_signal(d.body_accel_mps2,
+                                                        hyp.value * d.sample_rate_hz))
+                for d in drives]
+    raise ValueError(f"unknown data hypothesis {hyp.kind!r}")
+
+
+def residual_scale(hyp: DataHypothesis, index: int, n_drives: int) -> float:
+    """Factor from a corrected drive's residual to the recording's units."""
+    if hyp.kind == GAIN_CHANGE and index == n_drives - 1:
+        return 1.0 + hyp.value
+    return 1.0
+
+
+_MOVED = {
+    "sprung_mass_kg": ("sprung mass", "kg"),
+    "suspension_stiffness_n_per_m": ("stiffness", "N/m"),
+    "suspension_damping_ns_per_m": ("damping", "N s/m"),
+}
+
+
+def moved_text(uncorrected: dict[str, float], corrected: dict[str, float]) -> str:
+    """``"; correcting it moves the sprung mass from 380 to 392 kg (+3.2 %), ..."``."""
+    parts = []
+    for key, (label, unit) in _MOVED.items():
+        a, b = uncorrected.get(key), corrected.get(key)
+        if a and b and np.isfinite(a) and np.isfinite(b):
+            parts.append(f"{label} from {a:.4g} to {b:.4g} {unit} ({100 * (b / a - 1):+.1f} %)")
+    return "; correcting it moves the " + ", the ".join(parts) if parts else ""
