@@ -27,42 +27,57 @@ class DataWarning:
         return {"kind": self.kind, "message": self.message}
 
 
+def clipped_mask(values: np.ndarray, *, min_run: int = 3) -> np.ndarray:
+    """Samples that sit at the signal's extreme value in runs of at least ``min_run``
+    (a saturated accelerometer holds its full scale; a noisy signal reaches its maximum
+    once). A level counts when at least 0.02 % of the samples (and 5) sit at it.
+
+    Returns
+    -------
+    ndarray of bool
+        True where a sample is clipped (all True for a constant signal).
+    """
+    x = np.asarray(values, float)
+    out = np.zeros(x.size, bool)
+    if x.size < 100:
+        return out
+    span = float(x.max() - x.min())
+    if span <= 0:
+        return ~out
+    tol = 1e-9 * span
+    for level in (x.max(), x.min()):
+        at = np.abs(x - level) <= tol
+        if int(at.sum()) < max(5, int(2e-4 * x.size)):
+            continue
+        edges = np.flatnonzero(np.diff(np.concatenate(([0], at.astype(np.int8), [0]))))
+        for a, b in zip(edges[::2], edges[1::2], strict=True):
+            if b - a >= min_run:
+                out[a:b] = True
+    return out
+
+
 def check_clipping(
     values: np.ndarray, *, channel: str, session: str = "", min_run: int = 3
 ) -> DataWarning | None:
-    """Saturation: the signal sits exactly at its extreme value in runs of samples.
-
-    A continuous signal with noise reaches its maximum once; an accelerometer at full
-    scale holds it for consecutive samples. Flags a channel when at least 0.02 % of its
-    samples (and at least 5) sit at the max or min, in runs of at least ``min_run``.
-    """
+    """Saturation: the signal sits exactly at its extreme value in runs of samples
+    (:func:`clipped_mask`). Flags a channel when any sample is clipped."""
     x = np.asarray(values, float)
     if x.size < 100:
         return None
-    span = float(x.max() - x.min())
-    if span <= 0:
+    if float(x.max() - x.min()) <= 0:
         return DataWarning(
             "clipping", f"{channel} is constant: sensor dead or saturated", session, channel, 1.0
         )
-    tol = 1e-9 * span
-    worst = 0.0
-    for level in (x.max(), x.min()):
-        at = np.abs(x - level) <= tol
-        n_at = int(at.sum())
-        if n_at < max(5, int(2e-4 * x.size)):
-            continue
-        runs = np.diff(np.flatnonzero(np.diff(np.concatenate(([0], at.astype(np.int8), [0])))))
-        longest = int(runs[::2].max()) if runs.size else 0
-        if longest >= min_run:
-            worst = max(worst, n_at / x.size)
-    if worst == 0.0:
+    mask = clipped_mask(x, min_run=min_run)
+    if not mask.any():
         return None
+    worst = float(mask.mean())
     where = f" in the {session} drive" if session else ""
     return DataWarning(
         "clipping",
         f"{channel}{where} is clipped: {100 * worst:.2g} % of samples sit at full scale "
         f"(+-{max(abs(x.max()), abs(x.min())):.3g}). Use a larger measuring range or a softer "
-        "mount; peaks are lost and the fit will blame the suspension for it",
+        "mount; peaks are lost, and a mismatch where they are lost is the clipping's",
         session,
         channel,
         worst,

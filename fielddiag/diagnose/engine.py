@@ -762,10 +762,21 @@ def _model_static_offset(model: ForceModel, th: np.ndarray, load_n: float) -> fl
         return -load_n / k if k > 0 else 0.0
 
 
+def _drop(part: GreyBoxData, mask: np.ndarray) -> GreyBoxData:
+    """The samples of ``part`` outside ``mask`` (states only: for the departure map)."""
+    keep = ~mask
+    return replace(part, wheel_disp_m=part.wheel_disp_m[keep],
+                   wheel_vel_mps=part.wheel_vel_mps[keep],
+                   body_accel_mps2=part.body_accel_mps2[keep],
+                   body_disp_m=part.body_disp_m[keep], body_vel_mps=part.body_vel_mps[keep])
+
+
 def _departure(
-    fit: _Fit, prepared: Sequence[_Prepared], coupling: bool
+    fit: _Fit, prepared: Sequence[_Prepared], coupling: bool,
+    exclude: Callable[[Drive, np.ndarray], np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Equation-error departure of the fitted model on the measured states, all data."""
+    """Equation-error departure of the fitted model on the measured states, all data
+    (held-out samples where ``exclude(drive, time_s)`` is True left out)."""
     model = fit.candidate.extra["model"]
     vals = fit.candidate.values
     th = np.array([vals.get(k, 0.0) for k in model.param_keys])
@@ -773,6 +784,9 @@ def _departure(
     rs, vs, ds, is_val = [], [], [], []
     for p in prepared:
         for part, flag in ((p.fit, False), (p.val, True)):
+            if exclude is not None and flag:  # held-out samples a data problem corrupts
+                t = part.start_s + np.arange(part.n_samples) / part.sample_rate_hz
+                part = _drop(part, exclude(p.drive, t))
             r, rdot, x2, a2 = _states(part)
             g = GRAVITY if "body_mass_kg" in vals else 0.0
             load = 0.0 if part.ride_height_restored else part.added_mass_kg * g
@@ -795,9 +809,11 @@ UNEXPLAINED_MIN_SHARE_OF_LINEAR_MISFIT = 0.03
 def _unexplained(
     fit: _Fit, prepared: Sequence[_Prepared], coupling: bool, baseline: _Fit | None = None,
     say: Callable[[str], None] = lambda _m: None, known: Sequence[str] = EFFECT_LIBRARY,
+    exclude: Callable[[Drive, np.ndarray], np.ndarray] | None = None,
 ) -> tuple[dict | None, DepartureMap]:
-    """Force left that depends on (r, rdot) but that the chosen model does not describe."""
-    r, v, dep, is_val = _departure(fit, prepared, coupling)
+    """Force left that depends on (r, rdot) but that the chosen model does not describe
+    (judged on held-out samples outside ``exclude``: what a data problem corrupts)."""
+    r, v, dep, is_val = _departure(fit, prepared, coupling, exclude)
     dmap = departure_map(r[~is_val], v[~is_val], dep[~is_val], bins=12)
     i = np.clip(np.searchsorted(dmap.r_edges_m, r[is_val]) - 1, 0, dmap.mean.shape[0] - 1)
     j = np.clip(np.searchsorted(dmap.rdot_edges_mps, v[is_val]) - 1, 0, dmap.mean.shape[1] - 1)
@@ -1036,6 +1052,11 @@ def diagnose_drives(
         # a data problem plus physics the uncorrected data did not choose: fine, but say so
         say(f"  with the {_DATA_LABEL[chosen.data.kind]} corrected: "
             f"{' + '.join(chosen.physics)}")
+    clip_note = _clipping_competes(base, chosen, drives) if chosen.physics else None
+    if clip_note is not None:
+        say("  " + clip_note[1])
+        chosen = chosen if clip_note[0] else base
+        warnings.append(data_checks.DataWarning("clipping_explains", clip_note[1]))
     ride = None
     if mode == "pair" and chosen.physics and _acts_on_position(chosen):
         chosen, ride = _ride_height(chosen, grey, say)
@@ -1043,6 +1064,28 @@ def diagnose_drives(
             fits.append(chosen)
     say("looking for structure no effect explains")
     unexplained, _ = _unexplained(chosen, chosen.prepared, coupling, base, say, known=tried)
+    if unexplained is not None and any(w.kind == "clipping" for w in warnings):
+        # clipping competes: is the structure still there away from the clipped readings?
+        near = _near_clipping(chosen.runs, drives)
+        share = float(near.mean()) if near is not None else 0.0
+        away = unexplained
+        if share <= CLIP_DOMINATES:
+            say("  again, away from the clipped readings")
+            away, _ = _unexplained(chosen, chosen.prepared, coupling, base, say, known=tried,
+                                   exclude=_clipped_near)
+        if away is None or share > CLIP_DOMINATES:
+            unexplained = None
+            where = ("cannot be told from the clipping, the simpler explanation"
+                     if share > CLIP_DOMINATES else "is not found away from them")
+            warnings.append(data_checks.DataWarning(
+                "clipping_explains", "the structure left in the residual sits near the "
+                f"clipped readings ({100 * share:.0f} % of the held-out data are near them) "
+                f"and {where}: the clipping explains the mismatch. Record again with a "
+                "larger measuring range"))
+            if share > CLIP_DOMINATES:
+                hopeless = hopeless or (
+                    "the values of the linear model are not reliable: the clipped readings "
+                    "corrupt most of the recording")
     # where the restoring force departs from the *linear* surface (what the findings fix)
     r, v, dep, _ = _departure(base, prepared, coupling)
     dmap = departure_map(r, v, dep, bins=12)
@@ -1079,6 +1122,66 @@ def _data_size(hyp: DataHypothesis) -> str:
     if hyp.kind == "channel_time_offset":
         return f"{1000 * hyp.value:+.2f} +- {1000 * hyp.std:.2f} ms"
     return f"{100 * hyp.value:+.1f} +- {100 * hyp.std:.1f} %"
+
+
+#: Held-out samples this close to a clipped reading are "where the clipping acts" [s].
+CLIP_REACH_S = 0.25
+#: When more of the held-out data than this lies near clipped readings, what is left
+#: cannot show physics apart from the clipping (and the wheel motion, integrated from a
+#: clipped input, is wrong in between too): the known data problem explains the mismatch.
+CLIP_DOMINATES = 0.5
+
+
+def _near_clipping(runs: list, drives: Sequence[Drive]) -> np.ndarray | None:
+    """Per held-out residual sample: near a clipped reading (None: nothing clipped)."""
+    near = [_clipped_near(d, t) for (_sf, _m, _r, t), d in zip(runs, drives, strict=True)]
+    out = np.concatenate(near)
+    return out if out.any() else None
+
+
+def _clipped_near(drive: Drive, time_s: np.ndarray) -> np.ndarray:
+    """True at times within :data:`CLIP_REACH_S` of a clipped reading of the drive."""
+    mask = data_checks.clipped_mask(drive.wheel_accel_mps2) | data_checks.clipped_mask(
+        drive.body_accel_mps2)
+    times = drive.time_s[mask]
+    if times.size == 0:
+        return np.zeros(np.size(time_s), bool)
+    i = np.clip(np.searchsorted(times, time_s), 1, times.size) - 1
+    j = np.clip(i + 1, 0, times.size - 1)
+    return np.minimum(np.abs(time_s - times[i]), np.abs(time_s - times[j])) <= CLIP_REACH_S
+
+
+def _clipping_competes(base: _Fit, chosen: _Fit, drives: Sequence[Drive]
+                       ) -> tuple[bool, str] | None:
+    """Clipping as the competing explanation of a physical finding.
+
+    Modelling the clipping means leaving out what it corrupts (the held-out samples near
+    clipped readings). If the finding still predicts the rest significantly better than
+    the linear model, it stands, with the clipping named beside it; if not, the clipping
+    explains the mismatch. Returns (finding stands, words), or None without clipping.
+    """
+    near = _near_clipping(base.runs, drives)
+    if near is None or not near.any():
+        return None
+    eb, ec = base.candidate.residual_validation, chosen.candidate.residual_validation
+    share_t = float(near.mean())
+    share_e = float(np.sum(eb[near] ** 2) / np.sum(eb**2))
+    if share_t > CLIP_DOMINATES:
+        return False, (f"{100 * share_t:.0f} % of the held-out data lie near clipped "
+                       f"readings: the mismatch ({' + '.join(chosen.physics)}) cannot be told "
+                       "from the clipping, which is the simpler explanation. Record again "
+                       "with a larger measuring range")
+    t = paired_block_t(eb[~near], ec[~near])
+    gain = 1.0 - float(np.mean(ec[~near] ** 2) / np.mean(eb[~near] ** 2))
+    found = " + ".join(chosen.physics)
+    head = (f"{100 * share_e:.0f} % of the linear model's held-out misfit lies within "
+            f"{CLIP_REACH_S:g} s of clipped readings ({100 * share_t:.0f} % of the time)")
+    if t >= 3.0 and gain > 0:
+        return True, (f"{head}; away from them {found} still predicts {100 * gain:.0f} % "
+                      f"better (t = {t:.1f}), so it is not the clipping's")
+    return False, (f"{head}; away from them {found} predicts no better than the linear "
+                   f"model (t = {t:.1f}): the clipping explains the mismatch, not the "
+                   "suspension. Record again with a larger measuring range")
 
 
 def _residual_delay_s(fit: _Fit, substeps: int) -> float:
