@@ -43,6 +43,9 @@ class Scenario:
         Overrides of :class:`fielddiag.sim.QuarterCarParams`.
     added_mass_kg : float
         Mass added on the body for the second drive.
+    ride_height_restored : bool
+        Self-levelling car: the ride height is restored after the mass is added (see
+        :func:`fielddiag.sim.simulate`); False: passive sag.
     duration_s, rate_hz, road_class, snr_db : drive settings.
     speed_range_mps : (min, max) of the random speed profile.
     bumps : int
@@ -68,6 +71,7 @@ class Scenario:
     effects: tuple[tuple[str, dict[str, float]], ...] = ()
     params: dict[str, float] = field(default_factory=dict)
     added_mass_kg: float = 60.0
+    ride_height_restored: bool = False
     duration_s: float = 150.0
     rate_hz: float = 500.0
     road_class: str = "C"
@@ -98,6 +102,7 @@ class Scenario:
             "suspension_damping_ns_per_m": car.suspension_damping_ns_per_m,
             "coupling_stiffness_n_per_m": car.coupling_stiffness_n_per_m,
             "added_mass_kg": self.added_mass_kg,
+            "ride_height_restored": self.ride_height_restored,
             "effects": [{"effect": n, "parameters": dict(p)} for n, p in self.effects],
             "expected_verdict": self.expected_verdict,
             "expected_effects": list(self.expected_effects),
@@ -148,6 +153,7 @@ def simulate_scenario(sc: Scenario) -> tuple[sim.SimulatedDrive, sim.SimulatedDr
                 road_events=_road_events(sc.bumps, length, rng),
                 effects=effects,
                 added_mass_kg=mass,
+                ride_height_restored=sc.ride_height_restored,
                 wheel_sensor=_sensor(sc.wheel_sensor, sc.rate_hz, sc.snr_db),
                 body_sensor=_sensor(body, sc.rate_hz, sc.snr_db),
                 seed=seed,

@@ -7,8 +7,12 @@ are deviations from the static equilibrium of the car *without* added mass, so
 ``r = x2 - x1`` is the suspension extension measured from the unloaded ride height::
 
     F_s(r, rdot) = -K2 r - C2 rdot + N(r, rdot)          force of the suspension on the body
-    (M2 + dM) a2 = F_s - K3 x2 - dM g
-    M1 a1        = K1 (u - x1) + C1 (udot - v1) - F_s
+    (M2 + dM) a2 = F_s + L - K3 x2 - dM g
+    M1 a1        = K1 (u - x1) + C1 (udot - v1) - F_s - L
+
+``L`` is the static force of a levelling system: 0 for a passive car (the suspension sags
+under ``dM``), ``dM g K1 / (K1 + K3)`` with ``ride_height_restored`` (self-levelling: the
+suspension keeps its unloaded static deflection).
 
 ``N`` is the sum of the :data:`EFFECTS` switched on (each defined once, in the effect
 library :mod:`fielddiag.effects`). A drive starts from the static
@@ -39,7 +43,12 @@ from fielddiag.sim.drive import (
     simulate_from_dict,
     simulate_pair,
 )
-from fielddiag.sim.dynamics import internal_rate_factor, static_state, suspension_force_n
+from fielddiag.sim.dynamics import (
+    internal_rate_factor,
+    levelling_force_n,
+    static_state,
+    suspension_force_n,
+)
 from fielddiag.sim.effects import (
     EFFECTS,
     AsymmetricDamping,
@@ -95,6 +104,7 @@ __all__ = [
     "internal_rate_factor",
     "iso8608_profile",
     "iso8608_variance_m2",
+    "levelling_force_n",
     "make_effect",
     "road_event_from_dict",
     "simulate",

@@ -57,7 +57,9 @@ class SimulatedDrive:
 
     Displacements are from the static equilibrium of the car without added mass (so the
     suspension extension is ``body_disp_m - wheel_disp_m``); accelerometer readings include
-    g and the sensor model; ``*_true_*`` arrays do not include g.
+    g and the sensor model; ``*_true_*`` arrays do not include g. ``suspension_force_n`` is
+    the force of the springs, dampers and effects, without the static force of a levelling
+    system (``ride_height_restored``).
     """
 
     sample_rate_hz: float
@@ -90,6 +92,7 @@ class SimulatedDrive:
     can_speed_rate_hz: float
     road_spacing_m: float = 0.02
     initial_offset: InitialOffset | None = None
+    ride_height_restored: bool = False
 
     @property
     def metadata(self) -> dict[str, Any]:
@@ -123,6 +126,7 @@ class SimulatedDrive:
             "road_events": [e.to_dict() for e in self.events],
             "effects": [e.to_dict() for e in self.effects],
             "added_mass_kg": self.added_mass_kg,
+            "ride_height_restored": self.ride_height_restored,
             "wheel_sensor": self.wheel_sensor.to_dict(),
             "body_sensor": self.body_sensor.to_dict(),
             "seed": self.seed,
@@ -150,6 +154,7 @@ def simulate_from_dict(meta: dict[str, Any]) -> SimulatedDrive:
             road_events=tuple(events),
             effects=effects_from_dicts(meta.get("effects", [])),
             added_mass_kg=meta.get("added_mass_kg", 0.0),
+            ride_height_restored=bool(meta.get("ride_height_restored", False)),
             wheel_sensor=SensorModel(**meta["wheel_sensor"]),
             body_sensor=SensorModel(**meta["body_sensor"]),
             seed=meta["seed"],
@@ -191,6 +196,7 @@ def simulate(
     road_events: Sequence[RoadEvent] = (),
     effects: Sequence[Effect] = (),
     added_mass_kg: float = 0.0,
+    ride_height_restored: bool = False,
     sensor: SensorModel = DEFAULT_SENSOR,
     wheel_sensor: SensorModel | None = None,
     body_sensor: SensorModel | None = None,
@@ -218,6 +224,15 @@ def simulate(
         Nonlinear suspension effects (at most one of each kind).
     added_mass_kg : float
         Mass added on the body; the drive starts from the loaded static equilibrium.
+    ride_height_restored : bool
+        False (passive car): the suspension sags under the added mass, so the loaded drive
+        moves about a deflection ``dM g / K`` further into compression (nearer a bump
+        stop). True (self-levelling suspension, or the ride height re-set after loading):
+        a levelling system between wheel and body carries the added weight
+        (:func:`~fielddiag.sim.dynamics.levelling_force_n`), so the suspension moves about
+        the same static deflection as without the mass, while the body mass is still
+        ``M2 + dM`` (the tyre still deflects under the extra weight; the accelerometers
+        still read 1 g at rest).
     sensor, wheel_sensor, body_sensor : SensorModel
         ``sensor`` is used for any channel not given its own. Output rates must agree.
     seed : int or None
@@ -280,8 +295,9 @@ def simulate(
         road_class, length_m, road_spacing_m, road_waviness, np.random.default_rng(road_ss), events
     )
 
-    phys = _phys_array(params, added_mass_kg)
-    state0 = static_state(params, effects, added_mass_kg, float(road_h[0]))
+    restored = bool(ride_height_restored)
+    phys = _phys_array(params, added_mass_kg, restored)
+    state0 = static_state(params, effects, added_mass_kg, float(road_h[0]), restored)
     if initial_offset is not None:
         o = initial_offset
         state0[:4] += [o.wheel_disp_m, o.wheel_vel_mps, o.body_disp_m, o.body_vel_mps]
@@ -349,6 +365,7 @@ def simulate(
         can_speed_rate_hz=float(can_speed_rate_hz),
         road_spacing_m=float(road_spacing_m),
         initial_offset=initial_offset,
+        ride_height_restored=restored,
     )
 
 
@@ -366,7 +383,8 @@ def simulate_pair(
 ) -> tuple[SimulatedDrive, SimulatedDrive]:
     """Two drives of the same car over different road realisations, the second with added mass.
 
-    The two drive seeds are derived from ``seed``; ``kw`` goes to :func:`simulate`.
+    The two drive seeds are derived from ``seed``; ``kw`` goes to :func:`simulate`
+    (``ride_height_restored=True`` for a self-levelling car: it acts on the second drive).
 
     Returns
     -------

@@ -17,10 +17,29 @@ from fielddiag.sim._common import G_MPS2, MAX_LAMBDA_DT, MIN_INTERNAL_RATE_HZ
 from fielddiag.sim.effects import check_effects
 from fielddiag.sim.vehicle import DEFAULT_PARAMS, QuarterCarParams
 
-_P_M1, _P_K1, _P_C1, _P_M2T, _P_K3, _P_DMG = range(6)
+_P_M1, _P_K1, _P_C1, _P_M2T, _P_K3, _P_DMG, _P_LEV = range(7)
 
 
-def _phys_array(params: QuarterCarParams, added_mass_kg: float) -> np.ndarray:
+def levelling_force_n(
+    params: QuarterCarParams, added_mass_kg: float, ride_height_restored: bool
+) -> float:
+    """Static force of a levelling system between wheel and body [N] (up on the body).
+
+    A self-levelling suspension (or a technician re-setting the ride height) carries the
+    added mass's weight so that the suspension sits at the same static deflection as
+    without it. With the coupling K3 the body also sinks by the tyre's extra deflection,
+    which K3 partly carries: the force that restores the unloaded deflection exactly is
+    ``dM g K1 / (K1 + K3)`` (``dM g`` without coupling). Zero for a passive car.
+    """
+    if not ride_height_restored or added_mass_kg == 0.0:
+        return 0.0
+    k1, k3 = params.tire_stiffness_n_per_m, params.coupling_stiffness_n_per_m
+    return added_mass_kg * G_MPS2 * k1 / (k1 + k3)
+
+
+def _phys_array(
+    params: QuarterCarParams, added_mass_kg: float, ride_height_restored: bool = False
+) -> np.ndarray:
     p = params
     return np.array(
         [
@@ -30,6 +49,7 @@ def _phys_array(params: QuarterCarParams, added_mass_kg: float) -> np.ndarray:
             p.body_mass_kg + added_mass_kg,
             p.coupling_stiffness_n_per_m,
             added_mass_kg * G_MPS2,
+            levelling_force_n(params, added_mass_kg, ride_height_restored),
         ]
     )
 
@@ -62,8 +82,9 @@ def suspension_model(
 
 def _rhs(x1, v1, x2, v2, z, u, ud, phys, th, cs, dth, dz):  # pragma: no cover - template
     fs, _, _, _ = model_force_z(x2 - x1, v2 - v1, x2, z, th, cs, dth, dz)
-    a1 = (phys[_P_K1] * (u - x1) + phys[_P_C1] * (ud - v1) - fs) / phys[_P_M1]
-    a2 = (fs - phys[_P_K3] * x2 - phys[_P_DMG]) / phys[_P_M2T]
+    # a levelling system's static force _P_LEV acts between wheel and body, beside F_s
+    a1 = (phys[_P_K1] * (u - x1) + phys[_P_C1] * (ud - v1) - fs - phys[_P_LEV]) / phys[_P_M1]
+    a2 = (fs + phys[_P_LEV] - phys[_P_K3] * x2 - phys[_P_DMG]) / phys[_P_M2T]
     return a1, a2, fs
 
 
@@ -236,11 +257,15 @@ def static_state(
     effects: Sequence[Effect] = (),
     added_mass_kg: float = 0.0,
     road_height_m: float = 0.0,
+    ride_height_restored: bool = False,
 ) -> np.ndarray:
     """Static equilibrium [x1, v1, x2, v2, z...] of the loaded car, effects included.
 
-    The force balance ``F_s(r) = K3 x2 + dM g``, ``x1 = u - F_s / K1`` is solved for
-    ``r`` by Brent's method, with ``F_s`` the sum of the effects' static contributions
+    The force balance ``F_s(r) + L = K3 x2 + dM g``, ``x1 = u - (F_s + L) / K1`` is
+    solved for ``r`` by Brent's method (``L`` the levelling force,
+    :func:`levelling_force_n`: 0 for a passive car, so the suspension sags under the
+    added mass; with ``ride_height_restored`` it carries the added weight and ``r`` is
+    the unloaded car's), with ``F_s`` the sum of the effects' static contributions
     (:meth:`~fielddiag.effects.base.Effect.static_force_n`: friction and dampers are zero
     at rest; a hysteretic spring is taken as loaded slowly from r = 0). The internal
     states follow ``x1, v1, x2, v2`` (one 0 when there are none).
@@ -250,15 +275,16 @@ def static_state(
     FieldDiagError
         No stable equilibrium within 2 m of suspension travel.
     """
-    phys = _phys_array(params, added_mass_kg)
+    phys = _phys_array(params, added_mass_kg, ride_height_restored)
     model, th = suspension_model(params, effects)
     k1, k3, wg = params.tire_stiffness_n_per_m, params.coupling_stiffness_n_per_m, phys[_P_DMG]
+    lev = phys[_P_LEV]
 
     def fs(r: float) -> float:
         return model.static_force(r, 0.0, th)
 
     def h(r: float) -> float:  # net upward force on the body, decreasing in r when stable
-        f = fs(r)
+        f = fs(r) + lev
         return f - k3 * (road_height_m - f / k1 + r) - wg
 
     h0 = h(0.0)
@@ -282,7 +308,7 @@ def static_state(
             "the static equilibrium is unstable (K1 K2 + K3 (K1 + K2) <= 0 or a softening "
             "effect); make coupling_stiffness_n_per_m less negative."
         )
-    f = fs(r0)
+    f = fs(r0) + lev
     x1 = road_height_m - f / k1
     z = model.static_states(r0, th) if model.n_states else np.zeros(1)
     return np.array([x1, 0.0, x1 + r0, 0.0, *z])

@@ -1,0 +1,212 @@
+"""Scoring of a diagnosis against a random case's truth: every rule in one place.
+
+The diagnosis's JSON (``Diagnosis.to_dict()``) is read loosely, so that the scoring keeps
+working while the diagnosis grows:
+
+* data problems count whether reported as a warning (``{"kind": ...}``) or as a finding
+  (``{"effect": ...}``), under any of the names in :data:`DATA_PROBLEM_NAMES`;
+* suspension findings are the findings that are not data problems;
+* the ride height assumed or supported is read from a ``ride_height`` key at the top
+  level or in a finding (a string, a bool, or a dict; see :func:`ride_height_reported`).
+
+:func:`score_case` turns (case, diagnosis JSON, noise floor) into one flat row; the
+tables of ``bench_random.py`` are computed from rows only, so they can be recomputed from
+the saved JSON.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from fielddiag.effects import EFFECTS, TRAVEL_BOUND_M, make_effect
+
+#: Canonical data-problem kind -> names the diagnosis may report it under (warning kind or
+#: finding effect). Add a name here when the diagnosis adopts a new one.
+DATA_PROBLEM_NAMES: dict[str, tuple[str, ...]] = {
+    "gain_change": ("sensor_gain_changed", "sensor_gain_change", "gain_change"),
+    "time_offset": ("channel_time_offset", "time_offset"),
+    "bias_drift": ("bias_drift",),
+    "clipping": ("clipping", "clipped"),
+}
+_KIND_OF = {name: kind for kind, names in DATA_PROBLEM_NAMES.items() for name in names}
+#: Size from which a nuisance must be reported (issue 16's figures); smaller ones are
+#: counted apart.
+REPORT_FROM = {"gain_change": 0.01, "time_offset": 1e-3}
+#: Strength bins: linear model's held-out NRMSE / true structure's (the noise floor).
+STRENGTH_BINS = ((0.0, 1.0, "<1x"), (1.0, 2.0, "1-2x"), (2.0, 4.0, "2-4x"),
+                 (4.0, math.inf, ">4x"))
+#: A self-levelled (or passive) case with a position-dependent effect is "right" when the
+#: effect is ranked first and its parameters are within this relative error.
+PARAM_TOLERANCE = 0.25
+UNEXPLAINED = "unexplained"
+
+
+def data_problem_kind(name: str) -> str | None:
+    """Canonical kind of a reported warning kind / finding effect, or None."""
+    return _KIND_OF.get(name)
+
+
+def data_problems_reported(out: dict[str, Any]) -> set[str]:
+    """Canonical data-problem kinds the diagnosis reports (warnings or findings)."""
+    names = [w.get("kind", "") for w in out.get("warnings", [])]
+    names += [f.get("effect", "") for f in out.get("findings", [])]
+    return {k for k in map(data_problem_kind, names) if k is not None}
+
+
+def suspension_findings(out: dict[str, Any]) -> list[dict[str, Any]]:
+    """Findings about the suspension (data problems left out), in the diagnosis's order."""
+    return [f for f in out.get("findings", []) if data_problem_kind(f.get("effect", "")) is None]
+
+
+def _ride_height_value(v: Any) -> str | None:
+    if isinstance(v, bool):
+        return "restored" if v else "passive"
+    if isinstance(v, str):
+        s = v.lower()
+        if "restor" in s or "level" in s:
+            return "restored"
+        if "passive" in s or "sag" in s:
+            return "passive"
+        return None
+    if isinstance(v, dict):
+        for key in ("supported", "chosen", "result", "assumed", "model", "ride_height",
+                    "restored", "value"):
+            if key in v:
+                got = _ride_height_value(v[key])
+                if got is not None:
+                    return got
+    return None
+
+
+def ride_height_reported(out: dict[str, Any]) -> str | None:
+    """``"restored"``, ``"passive"`` or None (not reported), from a ``ride_height`` key at
+    the top level or in the first suspension finding that has one."""
+    if "ride_height" in out:
+        return _ride_height_value(out["ride_height"])
+    for f in suspension_findings(out):
+        if "ride_height" in f:
+            return _ride_height_value(f["ride_height"])
+    return None
+
+
+def expected_names(effects: list[tuple[str, dict]], library: tuple[str, ...]) -> list[str]:
+    """What a correct diagnosis names for each true effect: the effect if the diagnosis
+    tries it, else ``unexplained``."""
+    return [n if n in library else UNEXPLAINED for n, _ in effects]
+
+
+def position_dependent(name: str, params: dict[str, float]) -> bool:
+    """True if the effect's force at a given rate changes with the deflection (so passive
+    sag and restored ride height differ for it)."""
+    cls = EFFECTS[name]
+    if cls.n_states:
+        return False
+    eff = make_effect(name, **params)
+    r = np.linspace(-TRAVEL_BOUND_M, TRAVEL_BOUND_M, 301)
+    for rdot in (-0.1, 0.0, 0.1):
+        f = eff.force(r, np.full_like(r, rdot))[0]
+        if np.ptp(f) > 1e-9 * (1.0 + np.max(np.abs(f))):
+            return True
+    return False
+
+
+def param_errors(effects: list[tuple[str, dict]], findings: list[dict]) -> list[dict]:
+    """Relative error of every reported parameter of a true effect that was named (shape
+    parameters, reported apart by the diagnosis, are not scored)."""
+    out = []
+    for name, params in effects:
+        f = next((f for f in findings if f.get("effect") == name), None)
+        if f is None:
+            continue
+        shape = {p.name for p in EFFECTS[name].params if p.shape}
+        for key, true in params.items():
+            rep = f.get("parameters", {}).get(key)
+            if key in shape or rep is None or true == 0:
+                continue
+            out.append({"effect": name, "parameter": key, "true": true, "reported": rep,
+                        "rel_error": abs(rep / true - 1.0)})
+    return out
+
+
+def strength_bin(ratio: float | None) -> str:
+    """Label of the strength bin of a linear/floor ratio (``n/a`` without a floor)."""
+    if ratio is None or not math.isfinite(ratio):
+        return "n/a"
+    return next(lab for lo, hi, lab in STRENGTH_BINS if lo <= ratio < hi)
+
+
+def score_case(case: Any, out: dict[str, Any], floor_nrmse: float | None,
+               library: tuple[str, ...]) -> dict[str, Any]:
+    """One flat, JSON-serialisable row: the truth, what was reported, and the verdicts.
+
+    Parameters
+    ----------
+    case : random_cases.Case
+    out : dict
+        The diagnosis's JSON.
+    floor_nrmse : float or None
+        Held-out NRMSE of the true structure (None: not computable).
+    library : tuple of str
+        The effects the diagnosis tried (others are expected as ``unexplained``).
+    """
+    effects = list(case.effects)
+    found = suspension_findings(out)
+    named = [f.get("effect", "?") for f in found]
+    expected = expected_names(effects, library)
+    lin = out.get("baseline", {}).get("nrmse_validation")
+    ratio = None if floor_nrmse is None or lin is None or floor_nrmse <= 0 else lin / floor_nrmse
+    errs = param_errors(effects, found)
+    reported = data_problems_reported(out)
+    truth_kinds = {n["kind"]: n for n in case.nuisances}
+    nuis = {}
+    for kind in DATA_PROBLEM_NAMES:
+        n = truth_kinds.get(kind)
+        nuis[kind] = {
+            "present": n is not None,
+            "value": None if n is None else n["value"],
+            "must_report": n is not None and abs(n["value"]) >= REPORT_FROM.get(kind, 0.0),
+            "reported": kind in reported,
+        }
+    posdep = [n for n, p in effects if position_dependent(n, p)]
+    top1 = bool(named) and named[0] in expected if effects else None
+    pos_errs = [e["rel_error"] for e in errs if e["effect"] in posdep]
+    rh = ride_height_reported(out)
+    truth_rh = "restored" if case.ride_height_restored else "passive"
+    if not effects:
+        right_rh = not found
+    elif posdep:
+        right_rh = bool(top1) and bool(pos_errs) and max(pos_errs) <= PARAM_TOLERANCE \
+            and rh in (None, truth_rh)
+    else:
+        right_rh = bool(top1)
+    return {
+        "seed": case.seed,
+        "family": case.family,
+        "effects": [n for n, _ in effects],
+        "expected": expected,
+        "strengths_s": list(case.strengths),
+        "floor_nrmse": floor_nrmse,
+        "linear_nrmse": lin,
+        "strength_ratio": ratio,
+        "strength_bin": strength_bin(ratio) if effects else None,
+        "verdict": out.get("verdict"),
+        "named": named,
+        "detected": bool(found),
+        "top1": top1,
+        "all_named": set(expected) <= set(named) if effects else None,
+        "false_alarm": bool(found) if not effects else None,
+        "param_errors": errs,
+        "max_param_error": max((e["rel_error"] for e in errs), default=None),
+        "nuisances": nuis,
+        "reported_data_problems": sorted(reported),
+        "warning_kinds": [w.get("kind") for w in out.get("warnings", [])],
+        "ride_height_restored": case.ride_height_restored,
+        "position_dependent": posdep,
+        "ride_height_reported": rh,
+        "right_for_ride_height": right_rh,
+        "rate_hz": case.rate_hz,
+        "duration_s": case.duration_s,
+    }

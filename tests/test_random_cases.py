@@ -1,0 +1,196 @@
+"""The randomized validation generator (benchmarks/random_cases.py) and its scoring.
+
+A small fixed sample: three seeds at 60 s per drive (determinism, truth, one linear case
+diagnosed), plus draws only (no simulation) for the ranges and the strength spread.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+
+import random_cases as rc  # noqa: E402
+import random_scoring as rs  # noqa: E402
+
+from fielddiag.effects import CubicStiffness, register_effect, unregister_effect  # noqa: E402
+from fielddiag.units import GRAVITY_MPS2  # noqa: E402
+
+LINEAR_SEED = 100  # linear car, no nuisance, 244 Hz
+NUISANCE_SEED = 115  # dry friction, self-levelling, gain change and clipping
+BUMP_SEED = 112  # bump stop on a self-levelling car
+SHORT_S = 60.0
+
+
+def test_same_seed_same_case_and_json_round_trip() -> None:
+    for seed in (LINEAR_SEED, NUISANCE_SEED, BUMP_SEED):
+        a, b = rc.draw_case(seed), rc.draw_case(seed)
+        assert a == b
+        text = json.dumps(a.to_dict())
+        assert rc.Case.from_dict(json.loads(text)) == a
+        assert rc.draw_case(seed + 1) != a
+    # the truth is recorded, JSON-serialisable, in SI units
+    c = rc.draw_case(NUISANCE_SEED)
+    truth = json.loads(json.dumps(c.truth()))
+    assert truth["ride_height_restored"] is True
+    assert truth["family"] == "coulomb_friction"
+    assert truth["effects"][0]["parameters"]["friction_force_n"] > 0
+    assert {n["kind"] for n in truth["nuisances"]} == {"gain_change", "clipping"}
+    assert truth["sprung_mass_kg"] == c.params["body_mass_kg"]
+    # a duration override changes nothing else
+    short = rc.draw_case(NUISANCE_SEED, duration_s=SHORT_S)
+    assert short.duration_s == SHORT_S
+    assert {**short.to_dict(), "duration_s": 0} == {**c.to_dict(), "duration_s": 0}
+
+
+def test_same_seed_identical_signals_and_nuisances_applied(tmp_path) -> None:
+    case = rc.draw_case(NUISANCE_SEED, duration_s=SHORT_S)
+    b1, a1 = rc.simulate_case(case)
+    b2, a2 = rc.simulate_case(case)
+    for x, y in ((b1, b2), (a1, a2)):
+        np.testing.assert_array_equal(x.wheel_accel_mps2, y.wheel_accel_mps2)
+        np.testing.assert_array_equal(x.body_accel_mps2, y.body_accel_mps2)
+    assert b1.added_mass_kg == 0.0 and a1.added_mass_kg == pytest.approx(case.added_mass_kg)
+    assert a1.ride_height_restored and a1.to_dict()["ride_height_restored"] is True
+    assert b1.sample_rate_hz == case.rate_hz
+    assert b1.wheel_accel_mps2.size == round(SHORT_S * case.rate_hz)
+    # gain change: on the drawn channel of the 'after' drive only
+    gain = case.nuisance("gain_change")
+    sensor = f"{gain['channel']}_sensor"
+    assert getattr(a1, sensor).gain == pytest.approx(1.0 + gain["value"])
+    assert getattr(b1, sensor).gain == 1.0
+    # clipping: the drawn share of both drives' samples sits at full scale
+    clip = case.nuisance("clipping")
+    x = np.concatenate([getattr(d, f"{clip['channel']}_accel_mps2") for d in (b1, a1)])
+    level = getattr(a1, f"{clip['channel']}_sensor").clip_mps2
+    assert level is not None and level == getattr(b1, f"{clip['channel']}_sensor").clip_mps2
+    share = np.mean(np.abs(x) >= level)
+    assert share == pytest.approx(clip["value"], rel=0.05, abs=2.0 / x.size)
+    # the levelled drive moves about the unloaded deflection, not the sag
+    sag = case.added_mass_kg * GRAVITY_MPS2 / case.car.suspension_stiffness_n_per_m
+    assert abs(a1.suspension_extension_m.mean()) < 0.1 * sag
+    # sessions and a separate truth file
+    before, after, truth = rc.write_case(case, tmp_path)
+    assert before.exists() and after.exists()
+    assert json.loads(truth.read_text())["ride_height_restored"] is True
+
+
+def test_draws_span_the_ranges() -> None:
+    """Draws only (no simulation): ranges, probabilities and a log-uniform strength."""
+    n = 3000
+    cases = [rc.draw_case(50_000 + i) for i in range(n)]
+    m2 = np.array([c.params["body_mass_kg"] for c in cases])
+    assert m2.min() >= 250 and m2.max() <= 600
+    f = np.array([c.car.body_natural_frequency_hz() for c in cases if
+                  c.params["coupling_stiffness_n_per_m"] == 0.0])
+    assert f.min() >= 1.0 - 1e-9 and f.max() <= 1.8 + 1e-9
+    zeta = np.array([c.damping_ratio for c in cases])
+    assert zeta.min() >= 0.2 and zeta.max() <= 0.45
+    rate = np.array([c.rate_hz for c in cases])
+    assert rate.min() >= 200 and rate.max() <= 1000 and np.ptp(rate) > 700
+    frac = np.array([c.added_mass_kg / c.params["body_mass_kg"] for c in cases])
+    assert frac.min() >= 0.05 and frac.max() <= 0.15
+    dur = np.array([c.duration_s for c in cases])
+    assert dur.min() >= 90 and dur.max() <= 300
+    assert {c.road_class for c in cases} == {"B", "C", "D"}
+    # physics: linear / single / pair about 25 / 55 / 20 % (binomial 3 sigma < 2.5 %)
+    n_eff = np.array([len(c.effects) for c in cases])
+    for k, p in enumerate((0.25, 0.55, 0.20)):
+        assert np.mean(n_eff == k) == pytest.approx(p, abs=3 * math.sqrt(p * (1 - p) / n))
+    # every family of the registry is drawn, alone and in pairs
+    fams = {c.family for c in cases}
+    for name in rc.effect_families():
+        assert name in fams
+        assert any(name in f and "+" in f for f in fams)
+    # strength: log-uniform over 0.1-10, i.e. from below to far above the noise floor
+    s = np.array([x for c in cases for x in c.strengths])
+    assert s.min() >= 0.1 and s.max() <= 10.0
+    assert s.min() < 0.11 and s.max() > 9.0
+    below_1 = np.mean(s < 1.0)
+    assert below_1 == pytest.approx(0.5, abs=3 * math.sqrt(0.25 / s.size))
+    assert np.mean(s < math.sqrt(10) / 10) == pytest.approx(0.25, abs=0.04)
+    # nuisances and self-levelling at their probabilities, sizes in range
+    for kind, p in rc.NUISANCE_PROBABILITY.items():
+        got = [c.nuisance(kind) for c in cases if c.nuisance(kind) is not None]
+        assert len(got) / n == pytest.approx(p, abs=3 * math.sqrt(p * (1 - p) / n))
+    g = np.array([abs(c.nuisance("gain_change")["value"]) for c in cases
+                  if c.nuisance("gain_change")])
+    assert g.min() >= 0.005 and g.max() <= 0.05
+    t = np.array([c.nuisance("time_offset")["value"] for c in cases if c.nuisance("time_offset")])
+    assert t.min() >= 0.5e-3 and t.max() <= 3e-3
+    lev = np.mean([c.ride_height_restored for c in cases])
+    assert lev == pytest.approx(0.25, abs=3 * math.sqrt(0.25 * 0.75 / n))
+
+
+def test_a_family_registered_later_is_drawn() -> None:
+    class StiffenerForTest(CubicStiffness):
+        name = "test_only_stiffener"
+
+    register_effect(StiffenerForTest)
+    try:
+        assert "test_only_stiffener" in rc.effect_families()
+        found = [c for c in (rc.draw_case(70_000 + i) for i in range(400))
+                 if "test_only_stiffener" in c.family]
+        assert found
+        params = dict(found[0].effects)["test_only_stiffener"]
+        assert params["cubic_stiffness_n_per_m3"] > 0  # generic recipe: s x typical
+    finally:
+        unregister_effect("test_only_stiffener")
+    assert "test_only_stiffener" not in rc.effect_families()
+
+
+def test_linear_case_diagnosed_adequate() -> None:
+    from fielddiag.diagnose.engine import diagnose_drives
+    from fielddiag.effects import diagnosis_effects
+
+    case = rc.draw_case(LINEAR_SEED, duration_s=SHORT_S)
+    assert case.family == "linear" and not case.nuisances
+    out = diagnose_drives(rc.case_drives(case)).to_dict()
+    row = rs.score_case(case, out, None, diagnosis_effects())
+    assert out["verdict"] == "adequate"
+    assert row["false_alarm"] is False and row["named"] == []
+    assert row["reported_data_problems"] == []
+    assert row["right_for_ride_height"] is True
+    # the linear model finds the drawn car (pair mode: absolute values)
+    lin = out["linear_model"]
+    m = next(v for k, v in lin.items() if "mass" in k)
+    assert m == pytest.approx(case.params["body_mass_kg"], rel=0.1)
+
+
+def test_scoring_reads_warnings_findings_and_ride_height() -> None:
+    case = rc.draw_case(BUMP_SEED)
+    assert case.family == "bump_stop" and case.ride_height_restored
+    (name, params), = case.effects
+    out = {
+        "verdict": "missing_physics",
+        "baseline": {"nrmse_validation": 0.3},
+        "findings": [
+            {"effect": "sensor_gain_change", "parameters": {"gain": 1.02}},
+            {"effect": "bump_stop", "ride_height": {"supported": "restored"},
+             "parameters": {k: v * 1.1 for k, v in params.items()}},
+        ],
+        "warnings": [{"kind": "channel_time_offset"}, {"kind": "findings_withheld"}],
+    }
+    row = rs.score_case(case, out, 0.1, ("bump_stop", "coulomb_friction"))
+    assert row["named"] == ["bump_stop"] and row["top1"] is True
+    assert row["reported_data_problems"] == ["gain_change", "time_offset"]
+    assert row["strength_ratio"] == pytest.approx(3.0) and row["strength_bin"] == "2-4x"
+    assert row["position_dependent"] == ["bump_stop"]
+    assert row["ride_height_reported"] == "restored" and row["right_for_ride_height"] is True
+    assert row["max_param_error"] == pytest.approx(0.1)
+    assert not row["nuisances"]["gain_change"]["present"]
+    # passive reported for a levelled car: wrong; not reported: judged on the effect only
+    out["findings"][1]["ride_height"] = "passive sag"
+    assert rs.score_case(case, out, 0.1, ("bump_stop",))["right_for_ride_height"] is False
+    del out["findings"][1]["ride_height"]
+    assert rs.score_case(case, out, 0.1, ("bump_stop",))["right_for_ride_height"] is True
+    # an effect the diagnosis does not try is expected as "unexplained"
+    assert rs.expected_names([("quadratic_damping", {})], ("bump_stop",)) == ["unexplained"]
+    assert not rs.position_dependent("coulomb_friction", {"friction_force_n": 50.0})
+    assert rs.position_dependent("cubic_stiffness", {"cubic_stiffness_n_per_m3": 1e6})
