@@ -58,6 +58,7 @@ from fielddiag.diagnose.selection import (
     select_model,
 )
 from fielddiag.effects import EFFECTS, ForceModel, diagnosis_effects, get_effect, split_shape
+from fielddiag.effects.base import TRAVEL_BOUND_M
 from fielddiag.errors import FieldDiagError, InsufficientDataError
 from fielddiag.identify.greybox import (
     GreyBoxData,
@@ -178,6 +179,18 @@ class _Fit:
     @property
     def physics(self) -> tuple[str, ...]:
         return tuple(e for e in self.effects if e not in DATA_KINDS)
+
+    @property
+    def restored(self) -> bool:
+        """Fitted with the ride height restored for the loaded drive (self-levelling)."""
+        return any(p.fit.ride_height_restored for p in self.prepared)
+
+
+def _with_ride_height(prepared: Sequence[_Prepared], restored: bool) -> list[_Prepared]:
+    """The drives with the loaded ones' ride height restored (or passive sag)."""
+    def flag(d: GreyBoxData) -> GreyBoxData:
+        return replace(d, ride_height_restored=restored and d.added_mass_kg > 0)
+    return [replace(p, fit=flag(p.fit), val=flag(p.val), full=flag(p.full)) for p in prepared]
 
 
 def _values(result) -> tuple[dict[str, float], dict[str, float]]:
@@ -996,22 +1009,39 @@ def diagnose_drives(
 
     # every single effect gets the full fit (started from its signature fit); pairs only
     # of the single effects that predict held-out data better than the linear model
-    singles = [f for f in (grey((e,)) for e in effects) if f is not None]
+    # passive sag (the contract) and, in pair mode, a ride height restored after the mass
+    # was added (self-levelling) compete for every effect that acts on position
+    restored_on = _with_ride_height(prepared, True)
+    singles = []
+    for e in effects:
+        f = grey((e,))
+        if f is None:
+            continue
+        singles.append(f)
+        if mode == "pair" and _acts_on_position(f):
+            fr = grey((e,), restored_on, _initial_from(f))
+            if fr is not None:
+                singles.append(fr)
     fits += singles
+    best: dict[tuple[str, ...], _Fit] = {}
+    for f in singles:
+        known = best.get(f.effects)
+        if known is None or f.candidate.mse_validation < known.candidate.mse_validation:
+            best[f.effects] = f
     useful = sorted(
         (
             f
-            for f in singles
+            for f in best.values()
             if f.candidate.physical and compare(base.candidate, f.candidate).t > 0.0
         ),
         key=lambda f: f.candidate.mse_validation,
     )[:3]
     pairs = [
-        tuple(sorted(a.effects + b.effects, key=list(effects).index))
+        (tuple(sorted(a.effects + b.effects, key=list(effects).index)), a.restored or b.restored)
         for a, b in itertools.combinations(useful, 2)
     ]
-    for combo in pairs[: max(0, max_full_fits - len(singles))]:
-        f = grey(combo)
+    for combo, restored in pairs[: max(0, max_full_fits - len(best))]:
+        f = grey(combo, restored_on) if restored else grey(combo)
         if f is not None:
             fits.append(f)
     physics = select_model(base.candidate, [f.candidate for f in fits[1:]])
@@ -1020,7 +1050,8 @@ def diagnose_drives(
     # data problems compete with the physics: each is corrected and the models refitted
     for hyp in fd.hypotheses if fd is not None else ():
         say(f"testing a {_DATA_LABEL[hyp.kind]} ({_data_size(hyp)}) against the physics")
-        on = [_prepare(d, band, rate, holdout_fraction) for d in correct_drives(drives, hyp)]
+        on = _with_ride_height([_prepare(d, band, rate, holdout_fraction)
+                                for d in correct_drives(drives, hyp)], physics_fit.restored)
         lin = grey((), on, _initial_from(base), hyp)
         for _ in range(2 if hyp.kind == "channel_time_offset" else 0):
             if lin is None:
@@ -1032,8 +1063,8 @@ def diagnose_drives(
                 break
             hyp = replace(hyp, value=hyp.value + step)
             say(f"  refined to {_data_size(hyp)}")
-            on = [_prepare(d, band, rate, holdout_fraction)
-                  for d in correct_drives(drives, hyp)]
+            on = _with_ride_height([_prepare(d, band, rate, holdout_fraction)
+                                    for d in correct_drives(drives, hyp)], physics_fit.restored)
             lin = grey((), on, _initial_from(lin), hyp)
         if lin is None:
             continue
@@ -1059,9 +1090,9 @@ def diagnose_drives(
         warnings.append(data_checks.DataWarning("clipping_explains", clip_note[1]))
     ride = None
     if mode == "pair" and chosen.physics and _acts_on_position(chosen):
-        chosen, ride = _ride_height(chosen, grey, say)
-        if ride is not None and ride["assumed"] == "restored":
-            fits.append(chosen)
+        ride, other = _ride_height(chosen, fits, grey, say)
+        if other is not None and other not in fits:
+            fits.append(other)
     say("looking for structure no effect explains")
     unexplained, _ = _unexplained(chosen, chosen.prepared, coupling, base, say, known=tried)
     if unexplained is not None and any(w.kind == "clipping" for w in warnings):
@@ -1203,48 +1234,53 @@ def _acts_on_position(fit: _Fit) -> bool:
     model = fit.candidate.extra["model"]
     vals = fit.candidate.values
     th = np.array([vals.get(k, 0.0) for k in model.param_keys])
-    r = np.linspace(-0.06, 0.06, 25)
+    r = np.linspace(-TRAVEL_BOUND_M, TRAVEL_BOUND_M, 41)
     f = np.array([model.force(x, 0.0, x, th)[0][0] for x in r])
     line = np.polyval(np.polyfit(r, f, 1), r)
     return bool(np.max(np.abs(f - line)) > 1e-3 * max(np.max(np.abs(f)), 1e-9))
 
 
-def _ride_height(chosen: _Fit, grey: Callable[..., _Fit | None],
-                 say: Callable[[str], None]) -> tuple[_Fit, dict | None]:
-    """Passive sag (the assumption) against a restored ride height for the loaded drive.
+def _ride_height(chosen: _Fit, fits: Sequence[_Fit], grey: Callable[..., _Fit | None],
+                 say: Callable[[str], None]) -> tuple[dict | None, _Fit | None]:
+    """Passive sag (the contract) against a restored ride height for the loaded drive.
 
     A self-levelling suspension, or a technician re-setting the ride height after adding
     the mass, makes the loaded drive move about the unloaded deflection; a
     position-dependent effect (a bump stop, a progressive spring) then acts at other
-    travels than under passive sag. Both are fitted; the held-out data decide.
+    travels than under passive sag. The chosen model is compared with the same model
+    under the other assumption (fitted here if the candidates did not include it).
+    Returns the report and the other fit.
     """
-    say("testing passive sag against a restored ride height")
-    on = [replace(p, fit=replace(p.fit, ride_height_restored=p.fit.added_mass_kg > 0),
-                  val=replace(p.val, ride_height_restored=p.val.added_mass_kg > 0),
-                  full=replace(p.full, ride_height_restored=p.full.added_mass_kg > 0))
-          for p in chosen.prepared]
-    alt = grey(chosen.physics, on, _initial_from(chosen), chosen.data)
-    if alt is None:
-        return chosen, None
-    cmp = compare(chosen.candidate, alt.candidate)
-    restored = cmp.t >= 3.0 and cmp.relative_gain > 0 and alt.candidate.physical
-    back = compare(alt.candidate, chosen.candidate)
-    if restored:
+    other = next((f for f in fits if f.effects == chosen.effects and f.data == chosen.data
+                  and f.restored != chosen.restored), None)
+    if other is None:
+        say("testing passive sag against a restored ride height")
+        other = grey(chosen.physics, _with_ride_height(chosen.prepared, not chosen.restored),
+                     _initial_from(chosen), chosen.data)
+    if other is None:
+        return None, None
+    sag, lev = (other, chosen) if chosen.restored else (chosen, other)
+    t_lev = compare(sag.candidate, lev.candidate).t
+    t_sag = compare(lev.candidate, sag.candidate).t
+    if chosen.restored and t_lev >= 3.0:
         words = ("the data support a ride height restored after the mass was added "
-                 f"(self-levelling or re-set; t = {cmp.t:.1f} against passive sag): the "
+                 f"(self-levelling or re-set; t = {t_lev:.1f} against passive sag): the "
                  "effects are given about the unloaded ride height, which both drives share")
-    elif back.t >= 3.0:
+    elif chosen.restored:
+        words = ("a ride height restored after the mass was added (self-levelling or re-set) "
+                 f"fits a little better than passive sag (t = {t_lev:.1f}, not decisive): the "
+                 "travel at which the effects act is uncertain by the sag under the added mass")
+    elif t_sag >= 3.0:
         words = ("the data support passive sag (the added mass lowered the body; t = "
-                 f"{back.t:.1f} against a restored ride height): the effects are given about "
+                 f"{t_sag:.1f} against a restored ride height): the effects are given about "
                  "the unloaded ride height")
     else:
         words = ("assumed passive sag (the added mass lowers the body); a restored ride "
                  "height fits as well, so the travel at which the effects act is uncertain "
                  "by the sag under the added mass")
     say("  " + words)
-    ride = {"assumed": "restored" if restored else "passive_sag",
-            "t_restored_vs_sag": float(cmp.t), "message": words}
-    return (alt if restored else chosen), ride
+    return {"assumed": "restored" if chosen.restored else "passive_sag",
+            "t_restored_vs_sag": float(t_lev), "message": words}, other
 
 
 def diagnose_sessions(
