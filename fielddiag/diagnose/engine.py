@@ -32,14 +32,16 @@ from fielddiag import dsp
 from fielddiag.blas import single_threaded_blas
 from fielddiag.diagnose import data_checks
 from fielddiag.diagnose.data_hypotheses import (
-    KINDS as DATA_KINDS,
-)
-from fielddiag.diagnose.data_hypotheses import (
+    DECISIVE_Z,
+    MIN_T_SIGNIFICANT,
     DataHypothesis,
     correct_drives,
     from_transmissibility,
     moved_text,
     residual_scale,
+)
+from fielddiag.diagnose.data_hypotheses import (
+    KINDS as DATA_KINDS,
 )
 from fielddiag.diagnose.locate import (
     DepartureMap,
@@ -1018,7 +1020,8 @@ def diagnose_drives(
         if f is None:
             continue
         singles.append(f)
-        if mode == "pair" and _acts_on_position(f):
+        if (mode == "pair" and f.candidate.physical and _acts_on_position(f)
+                and compare(base.candidate, f.candidate).t > 0.0):
             fr = grey((e,), restored_on, _initial_from(f))
             if fr is not None:
                 singles.append(fr)
@@ -1079,6 +1082,8 @@ def diagnose_drives(
                 fits.append(both)
     sel = select_model(base.candidate, [f.candidate for f in fits[1:]])
     chosen = next(f for f in fits if f.candidate is sel.chosen)
+    if chosen.data is None:
+        chosen = _decisive_data_problem(chosen, fits)
     if chosen.physics and chosen.physics != physics_fit.physics and chosen.data is not None:
         # a data problem plus physics the uncorrected data did not choose: fine, but say so
         say(f"  with the {_DATA_LABEL[chosen.data.kind]} corrected: "
@@ -1147,6 +1152,19 @@ _DATA_LABEL = {
     "sensor_gain_changed": "sensor gain change between the drives",
     "channel_time_offset": "time offset between the wheel and body channels",
 }
+
+
+def _decisive_data_problem(chosen: _Fit, fits: Sequence[_Fit]) -> _Fit:
+    """A data problem estimated decisively (:data:`~.data_hypotheses.DECISIVE_Z`) that
+    also predicts the held-out data better than the chosen model it corrects."""
+    for f in fits:
+        if (f.data is None or f.physics != chosen.physics or f.restored != chosen.restored
+                or f.data.z < DECISIVE_Z or not f.candidate.physical):
+            continue
+        cmp = compare(chosen.candidate, f.candidate)
+        if cmp.t >= MIN_T_SIGNIFICANT and cmp.relative_gain > 0:
+            return f
+    return chosen
 
 
 def _data_size(hyp: DataHypothesis) -> str:
