@@ -12,8 +12,14 @@
 4. **Choose** on the held-out last part of every drive (:mod:`.selection`): an effect is
    reported only if it predicts unseen data significantly better, with physical values.
    Structure left over that no effect explains is reported as ``unexplained``.
-5. **Check the data**: clipping, bias drift, a gain change between the drives, a time
-   offset between the channels are reported as warnings about the data.
+5. **Data problems compete** with the physics (:mod:`.data_hypotheses`): a gain change
+   between the drives and a wheel/body time offset are estimated, the drives corrected,
+   the models refitted and scored on the same held-out data; clipping competes by
+   leaving out what it corrupts. A data problem is reported where it explains the data
+   better, beside any finding; it never hides one.
+6. **Ride height**: every position-dependent effect is fitted under passive sag (the
+   loaded drive moves about the sagged equilibrium) and under a restored ride height
+   (self-levelling); the report says which the data support.
 """
 
 from __future__ import annotations

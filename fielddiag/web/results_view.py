@@ -557,6 +557,10 @@ def render_diagnosis(result: Mapping[str, Any], recording_view=None) -> None:
     for w in result.get("warnings") or []:
         msg = w.get("message", str(w)) if isinstance(w, Mapping) else str(w)
         ui.label(f"⚠ {msg}").classes("text-sm text-amber-800").mark("diagnosis-warning")
+    ride = result.get("ride_height")
+    if isinstance(ride, Mapping) and ride.get("message"):
+        ui.label(f"Ride height: {ride['message']}").classes("text-sm").mark(
+            "diagnosis-ride-height")
 
     ui.label("Findings").classes("text-base font-semibold")
     findings = result.get("findings")
