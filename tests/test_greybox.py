@@ -325,3 +325,44 @@ def test_cli_fit_added_mass_from_the_command_line(cli_sessions, tmp_path, capsys
         p = res.parameter(name)
         assert abs(p.value - truth) < 4 * p.std, (name, p.value, p.std)
     _check_correlation(res)
+
+
+def test_a_levelled_drive_is_fitted_about_the_unloaded_ride_height() -> None:
+    """A self-levelling car (the simulator's ``ride_height_restored``) with a bump stop:
+    with the flag, the true model reproduces the loaded drive as well as the unloaded one
+    (RK4 at the sample rate on a stiff stop leaves ~1 % either way); as passive sag (the
+    stop nearer by dM g / K) it misses by the whole signal."""
+    effects = [make_effect("bump_stop", gap_m=0.025, stiffness_n_per_m=1.5e5)]
+    car = dataclasses.replace(CAR, coupling_stiffness_n_per_m=0.0)  # (K3 shares the load)
+    before, after = simulate_pair(car, added_mass_kg=80.0, seed=5, duration_s=20.0,
+                                  effects=effects, road_class="D", ride_height_restored=True)
+    data = [GreyBoxData.from_drive(d, truth=True) for d in (before, after)]
+    model, values = model_from_sim(car, effects)
+    fixed = {**dict(zip(model.param_keys, model.vector(values), strict=True)),
+             "body_mass_kg": car.body_mass_kg}
+    levelled = [dataclasses.replace(data[0]), dataclasses.replace(data[1],
+                                                                  ride_height_restored=True)]
+    cost = {}
+    for label, sessions in (("sag", data), ("levelled", levelled)):
+        prob = GreyBoxProblem(model, sessions, absolute=True, fixed=fixed,
+                              fit_initial_state=False)
+        r = prob.residual(prob.pack(np.zeros(0), None))
+        unloaded, loaded = (float(np.sqrt(np.mean(r[s] ** 2))) for s in prob.session_slices())
+        cost[label] = loaded
+    assert cost["levelled"] < 1.5 * unloaded < 0.03 * np.std(after.body_acc_true_mps2)
+    assert cost["sag"] > 20 * cost["levelled"]
+
+
+def test_the_sprung_mass_stays_within_its_bounds() -> None:
+    """A model that cannot describe the pair may run to absurd masses; a bounded fit
+    stops at the bound."""
+    before, after = simulate_pair(CAR, added_mass_kg=60.0, seed=6, duration_s=20.0)
+    data = [GreyBoxData.from_drive(d, truth=True) for d in (before, after)]
+    prob = GreyBoxProblem(linear_model(coupling=True), data, mass_bounds_kg=(100.0, 200.0))
+    lo, hi = prob.bounds()
+    i = prob.free_model.size  # the inverse mass follows the model's parameters
+    assert (lo[i], hi[i]) == (pytest.approx(1 / 200.0), pytest.approx(1 / 100.0))
+    res = fit_greybox(data, linear_model(coupling=True), mass_bounds_kg=(100.0, 200.0))
+    assert res.body_mass_kg == pytest.approx(200.0, rel=1e-3)  # the truth (380) is outside
+    with pytest.raises(FieldDiagError, match="mass_bounds_kg"):
+        GreyBoxProblem(linear_model(), data, mass_bounds_kg=(200.0, 100.0))
