@@ -428,6 +428,37 @@ def _time_residuals(theta: np.ndarray, pieces: Sequence[TimeRoutePiece]) -> np.n
     return np.concatenate(out)
 
 
+def prewhitened_signal_power(theta: np.ndarray, pieces: Sequence[TimeRoutePiece]) -> float:
+    """Mean power of the body signal in the time route's noise units.
+
+    The body acceleration prewhitened like the route's residual (by the noise the model
+    ``theta`` expects at each line): a linear car's residual power is about 1 in these
+    units, so ``(misfit - 1) / prewhitened_signal_power`` is the share of the body signal
+    a misfit of ``misfit`` leaves unexplained.
+
+    Parameters
+    ----------
+    theta : ndarray
+        Linear model (M2, K2, C2, K3) as the route fits it.
+    pieces : sequence of TimeRoutePiece
+        The route's stretches.
+
+    Returns
+    -------
+    float
+        Mean square of the prewhitened body acceleration per output sample (1 = noise).
+    """
+    out = []
+    for p in pieces:
+        t = model_transmissibility(theta, p.freq_hz, p.added_mass_kg)
+        pw = 1.0 / np.sqrt(p.noise_y + np.abs(t) ** 2 * p.noise_x)
+        spec = np.zeros(p.n_fft_out // 2 + 1, dtype=complex)
+        spec[: p.freq_hz.size] = p.body_spec * pw
+        out.append(sp_fft.irfft(spec, p.n_fft_out)[p.keep] / p.norm)
+    x = np.concatenate(out)
+    return float(np.mean(x * x))
+
+
 def time_route(pieces: Sequence[TimeRoutePiece], theta0: np.ndarray, *, include_k3: bool
                ) -> RouteEstimate:
     """Prewhitened output-error fit in the time domain with a one-step block jackknife.
