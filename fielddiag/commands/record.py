@@ -129,8 +129,9 @@ def build_sources(args: argparse.Namespace) -> list:
 
 def run(args: argparse.Namespace) -> int:
     from fielddiag.channels import SessionMetadata
+    from fielddiag.console import StatusPrinter, status_lines
     from fielddiag.outputs import check_target
-    from fielddiag.recorder import Recorder, StatusPrinter, status_lines
+    from fielddiag.recorder import Recorder
 
     check_target(args.output, overwrite=args.overwrite)
     sources = build_sources(args)
