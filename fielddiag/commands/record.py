@@ -147,20 +147,21 @@ def run(args: argparse.Namespace) -> int:
         signal.signal(signal.SIGTERM, _interrupt)
         signal.signal(signal.SIGINT, _interrupt)  # also when started in the background
     rec.start()
-    if not args.no_online:
-        rec.attach_online_estimator()
     tty = sys.stderr.isatty()
     interval = args.status_interval or (0.5 if tty else 5.0)
-    chans = ", ".join(f"{c.name} ({c.role})" for c in rec.channels) or "none"
-    sigs = ", ".join(s.name for s in rec.signals) or "none"
-    print(
-        f"recording to {args.output}\n  channels: {chans}\n  signals: {sigs}\n  Ctrl-C to stop",
-        file=sys.stderr,
-        flush=True,
-    )
     printer = StatusPrinter(sys.stderr, terminal=tty)
-    next_status = time.monotonic() + interval
-    try:
+    try:  # from here on, Ctrl-C stops the recording cleanly (even while the estimator loads)
+        if not args.no_online:
+            rec.attach_online_estimator()
+        chans = ", ".join(f"{c.name} ({c.role})" for c in rec.channels) or "none"
+        sigs = ", ".join(s.name for s in rec.signals) or "none"
+        print(
+            f"recording to {args.output}\n  channels: {chans}\n  signals: {sigs}\n"
+            "  Ctrl-C to stop",
+            file=sys.stderr,
+            flush=True,
+        )
+        next_status = time.monotonic() + interval
         while rec.running:
             if args.duration is not None and rec.clock.now() >= args.duration:
                 break
