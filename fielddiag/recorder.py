@@ -170,7 +170,21 @@ class Recorder:
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> Recorder:
-        """Open the sources, create the session, start recording. Returns self."""
+        """Open the sources, create the session, start recording.
+
+        Returns
+        -------
+        Recorder
+            self, recording.
+
+        Raises
+        ------
+        DeviceError
+            A source cannot be opened, or two sources decode signals of the same name.
+        SessionError
+            The session cannot be created (exists, no such folder, disk (almost) full).
+            Sources opened before are closed again.
+        """
         opened: list[Source] = []
         try:
             for s in self.sources:
@@ -396,7 +410,15 @@ class Recorder:
         return self._state == "recording" and not self._stop.is_set()
 
     def wait(self, duration_s: float | None = None, poll_s: float = 0.2) -> None:
-        """Block until ``duration_s`` of session time, a failure, or all sources finished."""
+        """Block until ``duration_s`` of session time, a failure, or all sources finished.
+
+        Parameters
+        ----------
+        duration_s : float or None
+            Session time to wait for [s]; None: until the recording ends by itself.
+        poll_s : float
+            Seconds between checks.
+        """
         while self.running:
             if duration_s is not None and self.clock.now() >= duration_s:
                 return
@@ -405,8 +427,16 @@ class Recorder:
     def stop(self) -> dict[str, Any]:
         """Stop the sources, close the session, and return the final status.
 
-        Raises the error that stopped the recording (a FieldDiagError: full disk,
-        device gone...) after everything has been closed.
+        Returns
+        -------
+        dict
+            The final :meth:`status`, ``state`` ``stopped``.
+
+        Raises
+        ------
+        FieldDiagError
+            The error that stopped the recording (full disk, device gone...), raised
+            after everything has been closed; the session holds all recorded before.
         """
         if self._state in ("stopped", "new"):
             if self.error is not None:
@@ -455,7 +485,20 @@ class Recorder:
 
     # ------------------------------------------------------------------ live access
     def add_event(self, label: str, time_s: float | None = None) -> float:
-        """Mark an instant (now by default) with a label; returns its session time."""
+        """Mark an instant with a label.
+
+        Parameters
+        ----------
+        label : str
+            What happened (``speed bump``...).
+        time_s : float or None
+            Session time [s]; None: now.
+
+        Returns
+        -------
+        float
+            The event's session time [s].
+        """
         t = self.clock.now() if time_s is None else float(time_s)
         self.writer.add_event(t, label)
         with self._lock:
@@ -463,7 +506,20 @@ class Recorder:
         return t
 
     def latest(self, seconds: float) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-        """The last ``seconds`` of DAQ data: (time_s, {channel name: calibrated values})."""
+        """The last ``seconds`` of DAQ data from the live buffer.
+
+        Parameters
+        ----------
+        seconds : float
+            Length of the window [s], up to ``live_buffer_s``.
+
+        Returns
+        -------
+        time_s : ndarray
+            Session times [s].
+        values : dict of str to ndarray
+            Per channel name, the calibrated samples (physical unit of the channel).
+        """
         if self._ring is None:
             return np.zeros(0), {}
         rate = self.daq.sample_rate_hz or 1.0
@@ -475,7 +531,18 @@ class Recorder:
         return t, {c.name: v[:, i].copy() for i, c in enumerate(self.channels)}
 
     def latest_signals(self, seconds: float) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-        """The last ``seconds`` of every vehicle signal: {name: (time_s, value)}."""
+        """The last ``seconds`` of every vehicle signal from the live buffer.
+
+        Parameters
+        ----------
+        seconds : float
+            Length of the window [s].
+
+        Returns
+        -------
+        dict of str to (ndarray, ndarray)
+            Per signal name, session times [s] and values (SI units: m/s, rad...).
+        """
         out = {}
         with self._lock:
             for name, ring in self._sig_rings.items():
@@ -488,11 +555,23 @@ class Recorder:
 
     @property
     def events(self) -> list[tuple[float, str]]:
+        """Events so far: (session time [s], label), in the order they were marked."""
         with self._lock:
             return list(self._events)
 
     def status(self) -> dict[str, Any]:
-        """Live status: elapsed time, rates, counters, buffer fill, errors (JSON-ready)."""
+        """Live status (JSON-ready).
+
+        Returns
+        -------
+        dict
+            ``state``, ``path``, ``elapsed_s`` [s], ``file_size_bytes``, ``samples``,
+            ``sample_rate_hz`` and ``measured_rate_hz`` [Hz], ``gaps``, the counters
+            (``frames_received``, ``frames_lost``, ``crc_errors``...), ``buffer_fill``
+            (0..1), ``drift_ppm`` [ppm], ``connected``, ``listener_errors``,
+            ``last_error``, ``sources`` (each source's own status) and, with an on-line
+            estimator, ``online`` (its status) or ``online_error``.
+        """
         if self.clock is None:
             return {"state": self._state, "path": str(self.path)}
         elapsed = self._stopped_at if self._stopped_at is not None else self.clock.now()
@@ -537,12 +616,27 @@ class Recorder:
     def attach_online_estimator(self, **kw: Any) -> Any:
         """Estimate suspension parameters on-line from the wheel and body channels.
 
-        Call after :meth:`start`. Returns the :class:`fielddiag.identify.online.OnlineEstimator`
-        (compiled before it is attached, so the source thread never waits for numba), or
-        None when the DAQ has no wheel and body channels. Its status (estimates, information
-        per parameter, advice for the technician) appears under ``"online"`` in
-        :meth:`status`; :attr:`online_ready` is set once it is attached (or has failed,
-        ``status()["online_error"]`` then says why).
+        Call after :meth:`start`. The estimator is compiled in a thread of its own before
+        it is attached, so the source thread never waits for numba. Its status
+        (estimates, information per parameter, advice for the technician) appears under
+        ``"online"`` in :meth:`status`; :attr:`online_ready` is set once it is attached
+        (or has failed, ``status()["online_error"]`` then says why).
+
+        Parameters
+        ----------
+        **kw
+            Keyword arguments of :class:`fielddiag.identify.online.OnlineEstimator`
+            (``added_mass_kg``, ``target_rel_std``...).
+
+        Returns
+        -------
+        OnlineEstimator or None
+            The estimator, or None when the DAQ has no wheel and body channels.
+
+        Raises
+        ------
+        TypeError
+            A keyword the estimator does not take.
         """
         from fielddiag.identify.online import OnlineEstimator
 

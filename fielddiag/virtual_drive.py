@@ -34,12 +34,14 @@ from drivers.base import Source
 from fielddiag.channels import SessionMetadata
 from fielddiag.errors import DeviceError, FieldDiagError
 
-__all__ = ["ECU_SIGNALS", "VirtualDrive", "record_virtual_drive"]
+__all__ = ["ECU_SIGNALS", "LOOP_DRIVE_S", "VirtualDrive", "record_virtual_drive"]
 
 #: The DBC signals of the virtual ECU that are decoded and stored (SI: m/s).
 ECU_SIGNALS = ["vehicle_speed=SPEED.SPEED"] + [
     f"WHEEL_SPEEDS.WHEEL_SPEED_{w}" for w in ("FL", "FR", "RL", "RR")
 ]
+#: Length of the drive streamed in a loop when a recording has no set length [s].
+LOOP_DRIVE_S = 120.0
 #: Output rate of a drive simulated for the virtual ECU alone (only its speed is used).
 _SPEED_ONLY_RATE_HZ = 100.0
 #: Longest wait for the on-line estimator (compiled before the start) to be attached.
@@ -101,7 +103,7 @@ class VirtualDrive:
     Examples
     --------
     >>> run = VirtualDrive("drive.h5", drive_s=32.0).start()
-    >>> final = run.wait(30.0, progress=print)   # the final status; run.error if it failed
+    >>> final = run.record_for(30.0, progress=print)   # the final status; run.error if it failed
     """
 
     def __init__(
@@ -314,6 +316,25 @@ class VirtualDrive:
                 self._stop_devices()
             return self.final_status or {}
 
+    def stop_or_raise(self) -> dict[str, Any]:
+        """:meth:`stop`, raising the error that ended the recording, if any.
+
+        Returns
+        -------
+        dict
+            The final status.
+
+        Raises
+        ------
+        FieldDiagError
+            What stopped the recording (device gone, disk full...), after everything is
+            closed; the session holds all recorded before.
+        """
+        final = self.stop()
+        if self.error is not None:
+            raise self.error
+        return final
+
     def _stop_quietly(self) -> None:
         """After a failed start: stop what was started, keep the start's own error."""
         try:
@@ -341,7 +362,7 @@ class VirtualDrive:
             except Exception:
                 pass
 
-    def wait(
+    def record_for(
         self,
         duration_s: float,
         *,
@@ -364,8 +385,15 @@ class VirtualDrive:
         -------
         dict
             The final status (see :meth:`stop`); :attr:`error` says why it failed.
+
+        Raises
+        ------
+        DeviceError
+            Not started.
         """
         rec = self.recorder
+        if rec is None:
+            raise DeviceError("not recording: start() the virtual drive first")
         next_progress = 0.0
         try:
             while rec.running and rec.clock.now() < duration_s:
@@ -489,7 +517,6 @@ def record_virtual_drive(
         road_class=road_class, drive=drive, faults=faults, online=online,
         include_recipe=include_recipe, overwrite=overwrite,
     ).start()
-    run.wait(duration_s, progress=progress)
-    if run.error is not None:
-        raise run.error
+    run.record_for(duration_s, progress=progress)
+    run.stop_or_raise()
     return Path(path)

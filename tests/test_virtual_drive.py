@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import io
 import os
+import subprocess
+import sys
 import threading
 
 import numpy as np
@@ -114,7 +116,7 @@ def test_a_pulled_cable_and_a_corrupting_link_lose_nothing_received(tmp_path):
                        metadata=SessionMetadata(vehicle="faulty car"),
                        faults={"corrupt_rate": 1e-3, "disconnect_at_s": 1.0,
                                "disconnect_for_s": 1.0}).start()
-    final = run.wait(4.5, progress=statuses.append)
+    final = run.record_for(4.5, progress=statuses.append)
     assert run.error is None and final["state"] == "stopped"
     assert any(not st["connected"] for st in statuses)  # the outage was seen live
     dev = run.daq_device
@@ -147,7 +149,7 @@ def test_a_looped_drive_repeats_on_the_daq_and_the_ecu(tmp_path):
     rate = 200.0
     run = VirtualDrive(path, drive_s=2.0, loop=True, seed=9, sample_rate_hz=rate,
                        include_recipe=False).start()
-    final = run.wait(4.5)
+    final = run.record_for(4.5)
     assert run.error is None and final["state"] == "stopped"
     signals, drive = simulated_accelerations(2.0, sample_rate_hz=rate, seed=9)
     counts = to_counts(signals, FULL_SCALE_MPS2, 2)
@@ -171,7 +173,7 @@ def test_a_looped_drive_repeats_on_the_daq_and_the_ecu(tmp_path):
 def test_the_ecu_alone_records_the_speed_and_says_why_there_is_no_estimate(tmp_path):
     path = tmp_path / "can-only.h5"
     run = VirtualDrive(path, drive_s=10.0, virtual_daq=False, seed=4, online=True).start()
-    final = run.wait(2.0)
+    final = run.record_for(2.0)
     assert final["state"] == "stopped"
     assert final["online_error"] == "no DAQ: nothing to estimate from"
     with SessionReader(path) as s:
@@ -222,3 +224,38 @@ def test_refuses_nothing_to_record_and_faults_without_the_virtual_daq(tmp_path):
                      faults={"corrupt_rate": 1e-3})
     with pytest.raises(TypeError, match="'duration'"):
         VirtualDrive(tmp_path / "x.h5", drive_s=5.0, duration=3.0)  # type: ignore[call-arg]
+
+
+def test_record_virtual_on_the_command_line(tmp_path):
+    """``fielddiag record --virtual`` records the simulated car through the same harness:
+    the session is the drive simulated with the added mass, bit for bit, and the on-line
+    estimate is per unit of the loaded mass (24 kN/m on 380 + 50 kg)."""
+    path = tmp_path / "cli.h5"
+    proc = subprocess.run(
+        [sys.executable, "-m", "fielddiag.cli", "record", "--virtual", "-o", str(path),
+         "--duration", "3", "--added-mass", "50", "--seed", "7", "--vehicle", "cli car"],
+        capture_output=True, text=True, timeout=180)
+    assert proc.returncode == 0, proc.stderr
+    assert "stopped after" in proc.stderr and ", 0 lost," in proc.stderr
+    signals, _ = simulated_accelerations(5.0, sample_rate_hz=500.0, added_mass_kg=50.0,
+                                         seed=7)
+    counts = to_counts(signals, FULL_SCALE_MPS2, 2)
+    with SessionReader(path) as s:
+        raw = _raw(s)
+        assert s.metadata.vehicle == "cli car" and s.metadata.added_mass_kg == 50.0
+        assert s.metadata.extra["virtual_drive"]["loop"] is False
+        assert "vehicle_speed" in {x.name for x in s.signals}
+    assert 2.5 * 500 < len(raw) <= 3.2 * 500 and np.array_equal(raw, counts[: len(raw)])
+    stiffness = next(line for line in proc.stderr.splitlines() if line.startswith("on-line"))
+    value = float(stiffness.split("stiffness ")[1].split(" N/m/kg")[0])
+    assert value == pytest.approx(24e3 / 430.0, rel=0.05)
+
+
+def test_record_virtual_refuses_real_sources_too(tmp_path):
+    proc = subprocess.run(
+        [sys.executable, "-m", "fielddiag.cli", "record", "--virtual", "--daq",
+         "serial:///dev/ttyUSB0", "-o", str(tmp_path / "x.h5")],
+        capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 1 and "Traceback" not in proc.stderr
+    assert "--virtual records the virtual DAQ and ECU: give it without --daq" in proc.stderr
+    assert not (tmp_path / "x.h5").exists()

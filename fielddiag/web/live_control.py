@@ -21,14 +21,13 @@ import numpy as np
 
 from fielddiag.channels import SessionMetadata
 from fielddiag.errors import DeviceError
-from fielddiag.virtual_drive import VirtualDrive
+from fielddiag.virtual_drive import LOOP_DRIVE_S, VirtualDrive
 
 if TYPE_CHECKING:
     from fielddiag.recorder import Recorder
 
 VIRTUAL = "virtual"
 NONE = "none"
-VIRTUAL_LOOP_S = 120.0
 
 __all__ = ["LiveOptions", "LiveRecording", "daq_choices", "can_choices"]
 
@@ -158,7 +157,7 @@ class LiveRecording:
         if not (virtual_daq or virtual_ecu or sources):
             raise DeviceError("choose a DAQ and/or a CAN source to record")
         self.run = VirtualDrive(
-            o.path, drive_s=VIRTUAL_LOOP_S, loop=True, virtual_daq=virtual_daq,
+            o.path, drive_s=LOOP_DRIVE_S, loop=True, virtual_daq=virtual_daq,
             virtual_ecu=virtual_ecu, sources=sources, metadata=o.metadata,
             sample_rate_hz=o.sample_rate_hz, n_channels=o.n_channels, seed=o.seed,
             faults=o.daq_faults() if virtual_daq else None, online=True,
