@@ -33,7 +33,13 @@ __all__ = ["LiveOptions", "LiveRecording", "daq_choices", "can_choices"]
 
 
 def daq_choices() -> dict[str, str]:
-    """DAQ sources to offer: the virtual DAQ, then serial ports found on this machine."""
+    """DAQ sources to offer: the virtual DAQ, then serial ports found on this machine.
+
+    Returns
+    -------
+    dict of str to str
+        Choice (``virtual`` or a ``serial://`` URL) to the label shown.
+    """
     out = {VIRTUAL: "virtual DAQ (simulated car, real serial driver on a pty)"}
     try:
         from drivers.serial_daq import list_ports
@@ -46,7 +52,13 @@ def daq_choices() -> dict[str, str]:
 
 
 def can_choices() -> dict[str, str]:
-    """CAN sources to offer."""
+    """CAN sources to offer.
+
+    Returns
+    -------
+    dict of str to str
+        Choice (``none`` or ``virtual``) to the label shown.
+    """
     return {
         NONE: "no CAN",
         VIRTUAL: "virtual ECU (python-can virtual bus, DBC-decoded speed)",
@@ -109,7 +121,14 @@ class LiveOptions:
                               "hold at least 1024 bytes")
 
     def daq_faults(self) -> dict[str, Any]:
-        """The fault keywords of :class:`drivers.virtual.VirtualDAQ`."""
+        """The fault keywords of :class:`drivers.virtual.VirtualDAQ`.
+
+        Returns
+        -------
+        dict
+            ``corrupt_rate``, ``garbage_every_s`` [s], ``stall_at_s`` [s],
+            ``stall_for_s`` [s], ``tx_buffer_bytes`` [bytes].
+        """
         return {"corrupt_rate": self.corrupt_rate, "garbage_every_s": self.garbage_every_s,
                 "stall_at_s": self.stall_at_s, "stall_for_s": self.stall_for_s,
                 "tx_buffer_bytes": self.tx_buffer_bytes}

@@ -35,8 +35,28 @@ def run_diagnosis(target, sessions: list[Path], out: Path, added_mass_kg: float 
                   progress=None) -> dict[str, Any]:
     """Diagnose one session or a pair, store the result as JSON at ``out``, return it.
 
-    ``target`` is :func:`fielddiag.web.services.diagnose_drives` (or a stand-in with its
-    signature); ``added_mass_kg`` is used for a pair only.
+    Parameters
+    ----------
+    target : callable
+        :func:`fielddiag.web.services.diagnose_drives` (or a stand-in with its signature).
+    sessions : list of Path
+        One session file or a before/after pair.
+    out : Path
+        Where the result JSON goes.
+    added_mass_kg : float or None
+        Mass added for the second drive of a pair [kg]; not used for one drive.
+    progress : callable or None
+        ``progress(None, message)``: the diagnosis says what it does, not how far.
+
+    Returns
+    -------
+    dict
+        The result as stored (``session_paths`` included).
+
+    Raises
+    ------
+    FieldDiagError
+        The drives cannot be diagnosed (the engine's message).
     """
 
     def said(message: Any) -> None:  # the engine reports what it is doing, not how far

@@ -47,8 +47,28 @@ def run_identification(
 ) -> dict[str, Any]:
     """Call the pipeline on a pair, store its result as JSON at ``out``, return the dict.
 
-    ``target`` is :func:`fielddiag.web.services.identify_pair` (or a stand-in with its
-    signature).
+    Parameters
+    ----------
+    target : callable
+        :func:`fielddiag.web.services.identify_pair` (or a stand-in with its signature).
+    before, after : Path
+        Session files of the pair.
+    added_mass_kg : float
+        Mass added for the second drive [kg].
+    out : Path
+        Where the result JSON goes.
+    progress : callable or None
+        ``progress(fraction, message)``.
+
+    Returns
+    -------
+    dict
+        The result as stored (``added_mass_kg`` included).
+
+    Raises
+    ------
+    FieldDiagError
+        The pair cannot be identified (the pipeline's message).
     """
     if progress is not None:
         progress(0.0, "identifying (spectra, noise floors, band, both routes, jackknife)")
