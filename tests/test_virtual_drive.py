@@ -9,9 +9,11 @@ from __future__ import annotations
 
 import io
 import os
+import signal
 import subprocess
 import sys
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -259,3 +261,35 @@ def test_record_virtual_refuses_real_sources_too(tmp_path):
     assert proc.returncode == 1 and "Traceback" not in proc.stderr
     assert "--virtual records the virtual DAQ and ECU: give it without --daq" in proc.stderr
     assert not (tmp_path / "x.h5").exists()
+
+
+def test_record_virtual_without_a_duration_loops_until_ctrl_c(tmp_path):
+    path = tmp_path / "looped-cli.h5"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "fielddiag.cli", "record", "--virtual", "-o", str(path),
+         "--quiet", "--no-online"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        n = 0
+        while time.monotonic() < deadline and n < 1000:  # 2 s of samples on disk
+            time.sleep(0.2)
+            if path.exists():
+                try:
+                    with SessionReader(path) as s:
+                        n = s.n_samples
+                except FieldDiagError:  # not readable yet
+                    pass
+        assert n >= 1000, "the recording did not start"
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, err
+    with SessionReader(path) as s:
+        assert s.closed_cleanly and s.metadata.extra["virtual_drive"]["loop"] is True
+        assert s.metadata.extra["virtual_drive"]["drive_s"] == pytest.approx(120.0)
+        # 100 frames/s of 5 samples at 500 Hz: what was received is stored
+        assert s.counters["frames_received"] * 5 == s.n_samples >= 1000
+        assert s.counters["frames_lost"] == 0
