@@ -192,6 +192,7 @@ def test_stop_is_safe_from_several_threads_and_stops_the_devices(tmp_path):
     run = VirtualDrive(tmp_path / "stop.h5", drive_s=10.0, seed=1).start()
     link = run.daq_device.path
     assert os.path.exists(link) and run.running
+    run.recorder.wait(1.0)  # a second of data, then stopped from three threads at once
     finals: list[dict] = []
     threads = [threading.Thread(target=lambda: finals.append(run.stop())) for _ in range(3)]
     for t in threads:
@@ -206,7 +207,8 @@ def test_stop_is_safe_from_several_threads_and_stops_the_devices(tmp_path):
     with SessionReader(tmp_path / "stop.h5") as s:
         assert s.closed_cleanly
         # what the host received is stored: the counters count the samples in the file
-        assert s.counters["frames_received"] * run.daq_device.samples_per_frame == s.n_samples
+        spf = run.daq_device.samples_per_frame
+        assert s.counters["frames_received"] * spf == s.n_samples >= 0.8 * 500
 
 
 def test_a_failed_start_stops_what_it_started(tmp_path):
