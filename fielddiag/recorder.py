@@ -16,24 +16,19 @@ attributes (a SWMR file cannot get new attributes once recording has started), s
 stored as the signal ``daq_clock_drift_ppm`` (unit ppm, source ``daq``): one estimate per
 second, the last value being the best.
 
-:func:`record_virtual_drive` records a simulated drive through the virtual DAQ (real pty,
-real serial driver) and the virtual ECU (python-can virtual bus, real CAN driver); the
-demo uses it.
+The status on a console is :mod:`fielddiag.console`'s; a simulated drive recorded through
+the virtual devices is :mod:`fielddiag.virtual_drive`'s.
 """
 
 from __future__ import annotations
 
 import os
-import shutil
-import sys
-import textwrap
 import threading
 import time
-import uuid
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 from pathlib import Path
-from typing import Any, TextIO
+from typing import Any
 
 import numpy as np
 
@@ -175,7 +170,21 @@ class Recorder:
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> Recorder:
-        """Open the sources, create the session, start recording. Returns self."""
+        """Open the sources, create the session, start recording.
+
+        Returns
+        -------
+        Recorder
+            self, recording.
+
+        Raises
+        ------
+        DeviceError
+            A source cannot be opened, or two sources decode signals of the same name.
+        SessionError
+            The session cannot be created (exists, no such folder, disk (almost) full).
+            Sources opened before are closed again.
+        """
         opened: list[Source] = []
         try:
             for s in self.sources:
@@ -401,7 +410,15 @@ class Recorder:
         return self._state == "recording" and not self._stop.is_set()
 
     def wait(self, duration_s: float | None = None, poll_s: float = 0.2) -> None:
-        """Block until ``duration_s`` of session time, a failure, or all sources finished."""
+        """Block until ``duration_s`` of session time, a failure, or all sources finished.
+
+        Parameters
+        ----------
+        duration_s : float or None
+            Session time to wait for [s]; None: until the recording ends by itself.
+        poll_s : float
+            Seconds between checks.
+        """
         while self.running:
             if duration_s is not None and self.clock.now() >= duration_s:
                 return
@@ -410,8 +427,16 @@ class Recorder:
     def stop(self) -> dict[str, Any]:
         """Stop the sources, close the session, and return the final status.
 
-        Raises the error that stopped the recording (a FieldDiagError: full disk,
-        device gone...) after everything has been closed.
+        Returns
+        -------
+        dict
+            The final :meth:`status`, ``state`` ``stopped``.
+
+        Raises
+        ------
+        FieldDiagError
+            The error that stopped the recording (full disk, device gone...), raised
+            after everything has been closed; the session holds all recorded before.
         """
         if self._state in ("stopped", "new"):
             if self.error is not None:
@@ -460,7 +485,20 @@ class Recorder:
 
     # ------------------------------------------------------------------ live access
     def add_event(self, label: str, time_s: float | None = None) -> float:
-        """Mark an instant (now by default) with a label; returns its session time."""
+        """Mark an instant with a label.
+
+        Parameters
+        ----------
+        label : str
+            What happened (``speed bump``...).
+        time_s : float or None
+            Session time [s]; None: now.
+
+        Returns
+        -------
+        float
+            The event's session time [s].
+        """
         t = self.clock.now() if time_s is None else float(time_s)
         self.writer.add_event(t, label)
         with self._lock:
@@ -468,7 +506,20 @@ class Recorder:
         return t
 
     def latest(self, seconds: float) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-        """The last ``seconds`` of DAQ data: (time_s, {channel name: calibrated values})."""
+        """The last ``seconds`` of DAQ data from the live buffer.
+
+        Parameters
+        ----------
+        seconds : float
+            Length of the window [s], up to ``live_buffer_s``.
+
+        Returns
+        -------
+        time_s : ndarray
+            Session times [s].
+        values : dict of str to ndarray
+            Per channel name, the calibrated samples (physical unit of the channel).
+        """
         if self._ring is None:
             return np.zeros(0), {}
         rate = self.daq.sample_rate_hz or 1.0
@@ -480,7 +531,18 @@ class Recorder:
         return t, {c.name: v[:, i].copy() for i, c in enumerate(self.channels)}
 
     def latest_signals(self, seconds: float) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-        """The last ``seconds`` of every vehicle signal: {name: (time_s, value)}."""
+        """The last ``seconds`` of every vehicle signal from the live buffer.
+
+        Parameters
+        ----------
+        seconds : float
+            Length of the window [s].
+
+        Returns
+        -------
+        dict of str to (ndarray, ndarray)
+            Per signal name, session times [s] and values (SI units: m/s, rad...).
+        """
         out = {}
         with self._lock:
             for name, ring in self._sig_rings.items():
@@ -493,11 +555,23 @@ class Recorder:
 
     @property
     def events(self) -> list[tuple[float, str]]:
+        """Events so far: (session time [s], label), in the order they were marked."""
         with self._lock:
             return list(self._events)
 
     def status(self) -> dict[str, Any]:
-        """Live status: elapsed time, rates, counters, buffer fill, errors (JSON-ready)."""
+        """Live status (JSON-ready).
+
+        Returns
+        -------
+        dict
+            ``state``, ``path``, ``elapsed_s`` [s], ``file_size_bytes``, ``samples``,
+            ``sample_rate_hz`` and ``measured_rate_hz`` [Hz], ``gaps``, the counters
+            (``frames_received``, ``frames_lost``, ``crc_errors``...), ``buffer_fill``
+            (0..1), ``drift_ppm`` [ppm], ``connected``, ``listener_errors``,
+            ``last_error``, ``sources`` (each source's own status) and, with an on-line
+            estimator, ``online`` (its status) or ``online_error``.
+        """
         if self.clock is None:
             return {"state": self._state, "path": str(self.path)}
         elapsed = self._stopped_at if self._stopped_at is not None else self.clock.now()
@@ -542,12 +616,27 @@ class Recorder:
     def attach_online_estimator(self, **kw: Any) -> Any:
         """Estimate suspension parameters on-line from the wheel and body channels.
 
-        Call after :meth:`start`. Returns the :class:`fielddiag.identify.online.OnlineEstimator`
-        (compiled before it is attached, so the source thread never waits for numba), or
-        None when the DAQ has no wheel and body channels. Its status (estimates, information
-        per parameter, advice for the technician) appears under ``"online"`` in
-        :meth:`status`; :attr:`online_ready` is set once it is attached (or has failed,
-        ``status()["online_error"]`` then says why).
+        Call after :meth:`start`. The estimator is compiled in a thread of its own before
+        it is attached, so the source thread never waits for numba. Its status
+        (estimates, information per parameter, advice for the technician) appears under
+        ``"online"`` in :meth:`status`; :attr:`online_ready` is set once it is attached
+        (or has failed, ``status()["online_error"]`` then says why).
+
+        Parameters
+        ----------
+        **kw
+            Keyword arguments of :class:`fielddiag.identify.online.OnlineEstimator`
+            (``added_mass_kg``, ``target_rel_std``...).
+
+        Returns
+        -------
+        OnlineEstimator or None
+            The estimator, or None when the DAQ has no wheel and body channels.
+
+        Raises
+        ------
+        TypeError
+            A keyword the estimator does not take.
         """
         from fielddiag.identify.online import OnlineEstimator
 
@@ -574,263 +663,3 @@ class Recorder:
 
         threading.Thread(target=warm_then_attach, name="online-warm-up", daemon=True).start()
         return est
-
-
-def format_status(st: dict[str, Any]) -> str:
-    """One console line of :meth:`Recorder.status`."""
-    parts = [f"{st.get('elapsed_s', 0.0):7.1f} s"]
-    if st.get("sample_rate_hz"):
-        rate = st.get("measured_rate_hz")
-        parts.append(
-            f"DAQ {rate:6.0f} Hz" if rate is not None else f"DAQ {st['sample_rate_hz']:g} Hz"
-        )
-        parts.append(
-            f"frames {st['frames_received']} lost {st['frames_lost']} crc {st['crc_errors']} "
-            f"gaps {st['gaps']}"
-        )
-        if st.get("drift_ppm") is not None:
-            parts.append(f"drift {st['drift_ppm']:+.0f} ppm")
-    for s in st.get("sources", []):
-        if s.get("kind") == "can":
-            fr = s.get("frame_rate_hz")
-            txt = f"CAN {fr:5.0f} fr/s" if fr is not None else "CAN -"
-            for k, v in s.get("last_values", {}).items():
-                if k == "vehicle_speed" or "SPEED" == k.upper():
-                    txt += f" {k} {v * 3.6:.1f} km/h"
-                    break
-            parts.append(txt)
-    parts.append(f"buf {100 * st.get('buffer_fill', 0.0):3.0f}%")
-    parts.append(f"{st.get('file_size_bytes', 0) / 1e6:.1f} MB")
-    if not st.get("connected", True) and st.get("state") == "recording":
-        parts.append("DISCONNECTED")
-    if st.get("last_error"):
-        parts.append(f"[{st['last_error'][:60]}]")
-    return " | ".join(parts)
-
-
-def status_lines(st: Mapping[str, Any]) -> list[str]:
-    """The live status as lines: recorder counters, then the on-line estimate and its advice.
-
-    Nothing is cut: the advice for the technician is a line of its own, whole.
-    """
-    lines = [format_status(st)]
-    online = st.get("online")
-    if online:  # the estimator is running, so its module is imported already
-        from fielddiag.identify.online import format_estimate
-
-        lines.append(format_estimate(online))
-        lines.append("advice: " + online.get("advice", ""))
-    elif st.get("online_error"):
-        lines.append("on-line estimate unavailable: " + st["online_error"])
-    return lines
-
-
-class StatusPrinter:
-    """Show :meth:`Recorder.status` on a console, the on-line estimate included.
-
-    On a terminal the status lines are redrawn in place, wrapped to the terminal width
-    (never cut). Otherwise (a log file, a pipe) each update is one full line appended.
-
-    Parameters
-    ----------
-    stream : text stream or None
-        Default ``sys.stderr``.
-    terminal : bool or None
-        Redraw in place; default: whether ``stream`` is a terminal.
-    width : int or None
-        Terminal columns; default: the terminal's size.
-    """
-
-    def __init__(self, stream: TextIO | None = None, *, terminal: bool | None = None,
-                 width: int | None = None) -> None:
-        self.stream = stream or sys.stderr
-        if terminal is None:
-            isatty = getattr(self.stream, "isatty", None)
-            terminal = bool(isatty()) if isatty is not None else False
-        self.terminal = terminal
-        self.width = width
-        self._rows_shown = 0  # terminal rows of the last redraw
-
-    def _rows(self, lines: list[str]) -> list[str]:
-        width = self.width or shutil.get_terminal_size((120, 24)).columns
-        room = max(20, width - 1)  # a full last column would make the terminal wrap itself
-        rows: list[str] = []
-        for line in lines:
-            if len(line) <= room:
-                rows.append(line)
-            else:
-                rows.extend(textwrap.wrap(line, room, subsequent_indent="    ",
-                                          break_on_hyphens=False))
-        return rows
-
-    def show(self, st: Mapping[str, Any]) -> None:
-        """Print one status (:meth:`Recorder.status`)."""
-        lines = status_lines(st)
-        if not self.terminal:
-            self.stream.write(" | ".join(lines) + "\n")
-        else:
-            rows = self._rows(lines)
-            up = f"\x1b[{self._rows_shown - 1}A" if self._rows_shown > 1 else ""
-            # back to the first row of the last redraw, clear to the end of the screen
-            self.stream.write("\r" + up + "\x1b[J" + "\n".join(rows))
-            self._rows_shown = len(rows)
-        self.stream.flush()
-
-    def finish(self) -> None:
-        """End the live display: what follows is printed below it."""
-        if self.terminal and self._rows_shown:
-            self.stream.write("\n")
-            self.stream.flush()
-        self._rows_shown = 0
-
-
-# ------------------------------------------------------------------ virtual drives
-def record_virtual_drive(
-    path: str | os.PathLike,
-    *,
-    duration_s: float,
-    added_mass_kg: float = 0.0,
-    seed: int = 0,
-    vehicle: str = "virtual car",
-    corner: str = "front-left",
-    rate_hz: float = 500.0,
-    progress: Callable[[dict[str, Any]], None] | None = None,
-    n_channels: int = 2,
-    params: Any = None,
-    effects: Sequence[Any] = (),
-    road_class: str | None = "C",
-    drive: Any = None,
-    operator: str = "fielddiag demo",
-    notes: str = "",
-    include_recipe: bool = True,
-    overwrite: bool = False,
-    faults: dict[str, Any] | None = None,
-    online: bool | Mapping[str, Any] = False,
-) -> Path:
-    """Record a simulated drive through the virtual DAQ (pty) and the virtual ECU.
-
-    The drive is simulated with :func:`fielddiag.sim.simulate` (``added_mass_kg`` on the
-    body), streamed in real time by a :class:`drivers.virtual.VirtualDAQ` on a
-    pseudo-terminal (channel 0 wheel, 1 body, others noise) and read back through the real
-    serial driver; a :class:`drivers.virtual.VirtualECU` publishes the drive's speed and
-    wheel speeds on an in-process python-can ``virtual`` bus, read by the real CAN driver
-    (signals ``vehicle_speed`` (role speed) and ``WHEEL_SPEED_FL/FR/RL/RR``, in m/s).
-    Takes ``duration_s`` of wall-clock time.
-
-    Parameters
-    ----------
-    path : str or Path
-        Session file to create.
-    duration_s : float
-        Length of the recording [s].
-    added_mass_kg : float
-        Mass added on the body (simulation and session metadata).
-    seed : int
-        Seeds the simulated road, speed profile and noise.
-    vehicle, corner, operator, notes : str
-        Session metadata.
-    rate_hz : float
-        DAQ sample rate.
-    progress : callable or None
-        Called about 4 times a second with :meth:`Recorder.status`.
-    n_channels : int
-        DAQ channels (>= 2).
-    params, effects, road_class : optional
-        Passed to the simulator (default car, no effects, ISO class C road).
-    drive : fielddiag.sim.SimulatedDrive or None
-        Stream this drive instead of simulating one (its rate and added mass are used).
-    include_recipe : bool
-        Store how the drive was made in ``extra["simulation"]``.
-    overwrite : bool
-        Replace an existing session file.
-    faults : dict or None
-        Fault injection passed to VirtualDAQ (``corrupt_rate``, ``garbage_every_s``,
-        ``disconnect_at_s``, ``disconnect_for_s``, ``stall_at_s``...).
-    online : bool or mapping
-        Estimate stiffness and damping on-line while recording
-        (:meth:`Recorder.attach_online_estimator`; a mapping gives its keyword arguments).
-        The estimator is compiled before the drive starts, so it sees the whole drive; its
-        status is under ``"online"`` in what ``progress`` receives.
-
-    Returns
-    -------
-    Path
-        The session file.
-    """
-    import can
-
-    from drivers.can_vehicle import CanBusSource
-    from drivers.serial_daq import SerialDAQSource
-    from drivers.virtual import VirtualDAQ, VirtualECU, simulated_accelerations
-
-    if drive is not None:
-        rate_hz = drive.sample_rate_hz
-        added_mass_kg = drive.added_mass_kg
-    signals, drive = simulated_accelerations(
-        duration_s + 2.0,
-        sample_rate_hz=rate_hz,
-        n_channels=max(2, n_channels),
-        added_mass_kg=added_mass_kg,
-        seed=seed,
-        params=params,
-        effects=effects,
-        road_class=road_class,
-        drive=drive,
-    )
-    daq = VirtualDAQ(signals, sample_rate_hz=rate_hz, loop=False, seed=seed, **(faults or {}))
-    channel = f"fielddiag-vecu-{uuid.uuid4().hex[:8]}"
-    ecu_bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
-    ecu = VirtualECU(ecu_bus, drive.vehicle_speed_time_s, drive.vehicle_speed_mps, seed=seed)
-    extra: dict[str, Any] = {"virtual_drive": {"seed": seed, "rate_hz": rate_hz}}
-    if include_recipe:
-        extra["simulation"] = drive.to_dict()
-    meta = SessionMetadata(
-        vehicle=vehicle,
-        corner=corner,
-        operator=operator,
-        added_mass_kg=float(added_mass_kg),
-        notes=notes,
-        extra=extra,
-    )
-    online_kw = dict(online) if isinstance(online, Mapping) else {}
-    if online:
-        from fielddiag.identify.online import OnlineEstimator
-
-        OnlineEstimator(rate_hz, **online_kw).warm_up()  # compile now, not during the drive
-    daq.start()
-    rec = None
-    try:
-        daq_src = SerialDAQSource.from_url(f"serial://{daq.path}")
-        can_src = CanBusSource.from_url(f"can://virtual/{channel}")
-        can_src.dbc = ecu.db
-        can_src.dbc_label = "drivers.virtual.VIRTUAL_ECU_DBC"
-        can_src.add_signals(
-            ["vehicle_speed=SPEED.SPEED"]
-            + [f"WHEEL_SPEEDS.WHEEL_SPEED_{w}" for w in ("FL", "FR", "RL", "RR")]
-        )
-        rec = Recorder(path, [daq_src, can_src], metadata=meta, overwrite=overwrite)
-        rec.start()
-        if online:
-            rec.attach_online_estimator(**online_kw)
-            rec.online_ready.wait(10.0)  # compiled already: attached at once
-        ecu.time_fn = rec.clock.now  # speed of the drive at the session time it is sent
-        ecu.start()
-        next_progress = 0.0
-        while rec.running and rec.clock.now() < duration_s:
-            time.sleep(0.05)
-            if progress is not None and time.monotonic() >= next_progress:
-                progress(rec.status())
-                next_progress = time.monotonic() + 0.25
-        final = rec.stop()
-        if progress is not None:
-            progress(final)
-    finally:
-        ecu.stop()
-        if rec is not None and rec.running:
-            try:
-                rec.stop()
-            except FieldDiagError:
-                pass
-        daq.stop()
-        ecu_bus.shutdown()
-    return Path(path)

@@ -8,7 +8,6 @@ from __future__ import annotations
 import contextlib
 import io
 import json
-import os
 import signal
 import subprocess
 import sys
@@ -22,17 +21,12 @@ import pytest
 from _daq_helpers import missing_seqs, noise_signals
 
 from drivers import open_source
-from drivers.virtual import VirtualDAQ, VirtualECU, simulated_accelerations, to_counts
+from drivers.virtual import VirtualDAQ, VirtualECU
 from fielddiag.channels import SessionMetadata
 from fielddiag.cli import main as cli_main
+from fielddiag.console import format_status
 from fielddiag.errors import DeviceError, SessionError
-from fielddiag.recorder import (
-    Recorder,
-    StatusPrinter,
-    _Ring,
-    format_status,
-    record_virtual_drive,
-)
+from fielddiag.recorder import Recorder, _Ring
 from fielddiag.session import SessionReader
 
 REPO = Path(__file__).resolve().parents[1]
@@ -292,79 +286,3 @@ def test_refuses_to_start_without_room_or_device(tmp_path):
     a, b = open_source("serial:///dev/a"), open_source("serial:///dev/b")
     with pytest.raises(DeviceError, match="one DAQ"):
         Recorder(tmp_path / "z.h5", [a, b])
-
-
-def test_record_virtual_drive_is_the_simulated_drive(tmp_path):
-    path = tmp_path / "after.h5"
-    statuses = []
-    out = record_virtual_drive(
-        path,
-        duration_s=3.0,
-        added_mass_kg=50.0,
-        seed=7,
-        vehicle="demo car",
-        corner="rear-left",
-        rate_hz=500.0,
-        progress=statuses.append,
-    )
-    assert out == path and statuses and statuses[-1]["state"] == "stopped"
-    signals, drive = simulated_accelerations(
-        5.0, sample_rate_hz=500.0, n_channels=2, added_mass_kg=50.0, seed=7
-    )
-    counts = to_counts(signals, 16 * 9.80665, 2)
-    with SessionReader(path) as s:
-        md = s.metadata
-        assert (md.vehicle, md.corner, md.added_mass_kg) == ("demo car", "rear-left", 50.0)
-        assert md.extra["simulation"]["added_mass_kg"] == 50.0
-        assert [(c.name, c.role) for c in s.channels] == [("wheel_z", "wheel"), ("body_z", "body")]
-        raw = _raw(s)
-        assert s.counters["frames_lost"] == 0 and 2.5 * 500 < len(raw) <= 3.2 * 500
-        # the device streams the drive from its first sample on: the session holds it exactly
-        assert np.array_equal(raw, counts[: len(raw)])
-        # the body sensor reads g on average (the car stands on its springs)
-        assert np.mean(s.read_role("body")) == pytest.approx(9.80665, abs=0.05)
-        t_v, v = s.signal(s.signal_for_role("speed").name)
-        # CAN speed = the simulated speed at the same session time (ECU started with the DAQ)
-        truth = np.interp(t_v, drive.vehicle_speed_time_s, drive.vehicle_speed_mps)
-        assert np.max(np.abs(v - truth)) < 0.3
-        assert {x.name for x in s.signals} >= {"vehicle_speed", "WHEEL_SPEED_FL"}
-    assert os.path.getsize(path) > 0
-
-
-def test_live_status_shows_the_online_estimate_and_the_whole_advice(tmp_path):
-    """A virtual drive with the on-line estimator attached: the status holds estimates,
-    information bits and advice, and the console shows them, the advice never cut."""
-    statuses = []
-    record_virtual_drive(tmp_path / "online.h5", duration_s=5.0, seed=3, online=True,
-                         progress=statuses.append)
-    online = statuses[-1]["online"]
-    assert online["updates"] > 1000  # the estimator saw the drive (500 Hz, 2 s to settle)
-    params = {p["label"]: p for p in online["parameters"]}
-    assert set(params) == {"stiffness", "damping"}
-    # default car: K2 = 24 kN/m, C2 = 1.8 kN s/m on 380 kg
-    assert params["stiffness"]["value"] == pytest.approx(24e3 / 380, rel=0.05)
-    assert params["damping"]["value"] == pytest.approx(1800 / 380, rel=0.10)
-    for p in params.values():
-        assert p["information_bits"] > 3.0  # prior std 100 %: 3 bits = ±12 %
-        assert p["rel_std_pct"] == pytest.approx(100 * p["std"] / abs(p["value"]))
-    advice = online["advice"]
-    assert isinstance(advice, str) and len(advice) > 20
-    # a log: one full line per update with the estimates and the whole advice
-    log = io.StringIO()
-    StatusPrinter(log, terminal=False).show(statuses[-1])
-    line = log.getvalue()
-    assert line.count("\n") == 1 and line.startswith(format_status(statuses[-1]))
-    assert line.rstrip("\n").endswith("advice: " + advice)
-    k = params["stiffness"]
-    assert (f"stiffness {k['value']:.3g} N/m/kg" in line
-            and f"{k['information_bits']:.1f} bit" in line)
-    # a narrow terminal: redrawn in place, wrapped (never wider than the screen), all there
-    term = io.StringIO()
-    printer = StatusPrinter(term, terminal=True, width=60)
-    printer.show(statuses[-2])
-    printer.show(statuses[-1])
-    printer.finish()
-    first, second = term.getvalue().split("\r")[1:]
-    rows = second.removeprefix(f"\x1b[{first.count(chr(10))}A\x1b[J").rstrip("\n").split("\n")
-    assert max(len(r) for r in rows) <= 59
-    assert " ".join(r.strip() for r in rows).endswith("advice: " + advice)

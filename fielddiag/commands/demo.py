@@ -68,7 +68,7 @@ def _new_run_dir(root: Path) -> Path:
 def _record_pair(run_dir: Path, args: argparse.Namespace) -> list[Path]:
     """Record before and after concurrently through the virtual devices, with progress."""
     from fielddiag import sim
-    from fielddiag.recorder import record_virtual_drive
+    from fielddiag.virtual_drive import record_virtual_drive
 
     effects = [sim.make_effect(n, **p) for n, p in DEMO_EFFECTS]
     labels = (("before", 0.0, args.seed), ("after", args.added_mass, args.seed + 1))

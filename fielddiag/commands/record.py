@@ -5,6 +5,14 @@
         --signal vehicle_speed=SPEED.SPEED -o drive.h5 \\
         --added-mass 0 --vehicle "RAV4 2018" --corner front-left
 
+    fielddiag record --virtual -o drive.h5 --duration 60 --added-mass 40
+
+``--virtual`` records a simulated car instead: the virtual DAQ on a pseudo-terminal read
+by the real serial driver and the virtual ECU on python-can's virtual bus read by the real
+CAN driver (:mod:`fielddiag.virtual_drive`, as ``fielddiag demo`` and the dashboard do);
+the drive is simulated with the added mass on the body and streamed once for --duration,
+or in a loop until Ctrl-C.
+
 A status line shows rates, frames lost, CRC errors, buffer fill and elapsed time; with a
 wheel and a body channel, two more lines show the on-line estimate (value ± relative
 standard deviation and information in bits per parameter) and the advice for the driver,
@@ -22,7 +30,7 @@ import sys
 import time
 
 from fielddiag.errors import FieldDiagError
-from fielddiag.validate import arg_number
+from fielddiag.validate import arg_int, arg_number
 
 
 def _interrupt(signum: int, frame: object) -> None:
@@ -62,6 +70,17 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="NAME",
         default=None,
         help="which decoded signal is the vehicle speed (default: found by name)",
+    )
+    p.add_argument(
+        "--virtual",
+        action="store_true",
+        help="record a simulated car through the virtual DAQ and ECU (no --daq/--can)",
+    )
+    p.add_argument(
+        "--seed",
+        type=arg_int("--seed", 0, 2**32 - 1, "a random seed"),
+        default=0,
+        help="with --virtual: seed of the simulated road, speed and noise",
     )
     p.add_argument("-o", "--output", required=True, metavar="SESSION.h5", help="file to create")
     p.add_argument(
@@ -129,11 +148,11 @@ def build_sources(args: argparse.Namespace) -> list:
 
 def run(args: argparse.Namespace) -> int:
     from fielddiag.channels import SessionMetadata
+    from fielddiag.console import StatusPrinter, status_lines
     from fielddiag.outputs import check_target
-    from fielddiag.recorder import Recorder, StatusPrinter, status_lines
+    from fielddiag.recorder import Recorder
 
     check_target(args.output, overwrite=args.overwrite)
-    sources = build_sources(args)
     meta = SessionMetadata(
         vehicle=args.vehicle,
         corner=args.corner,
@@ -141,25 +160,35 @@ def run(args: argparse.Namespace) -> int:
         added_mass_kg=args.added_mass,
         notes=args.notes,
     )
-    rec = Recorder(args.output, sources, metadata=meta, overwrite=args.overwrite)
+    if args.virtual:
+        run_ = virtual_drive(args, meta)
+    else:
+        rec = Recorder(args.output, build_sources(args), metadata=meta,
+                       overwrite=args.overwrite)
     if threading_main():
         signal.signal(signal.SIGTERM, _interrupt)
         signal.signal(signal.SIGINT, _interrupt)  # also when started in the background
-    rec.start()
-    if not args.no_online:
-        rec.attach_online_estimator()
+    if args.virtual:
+        rec = run_.start().recorder  # the on-line estimator is attached already
+        stop = run_.stop_or_raise
+    else:
+        rec.start()
+        stop = rec.stop
     tty = sys.stderr.isatty()
     interval = args.status_interval or (0.5 if tty else 5.0)
-    chans = ", ".join(f"{c.name} ({c.role})" for c in rec.channels) or "none"
-    sigs = ", ".join(s.name for s in rec.signals) or "none"
-    print(
-        f"recording to {args.output}\n  channels: {chans}\n  signals: {sigs}\n  Ctrl-C to stop",
-        file=sys.stderr,
-        flush=True,
-    )
     printer = StatusPrinter(sys.stderr, terminal=tty)
-    next_status = time.monotonic() + interval
-    try:
+    try:  # from here on, Ctrl-C stops the recording cleanly (even while the estimator loads)
+        if not args.no_online and not args.virtual:
+            rec.attach_online_estimator()
+        chans = ", ".join(f"{c.name} ({c.role})" for c in rec.channels) or "none"
+        sigs = ", ".join(s.name for s in rec.signals) or "none"
+        print(
+            f"recording to {args.output}\n  channels: {chans}\n  signals: {sigs}\n"
+            "  Ctrl-C to stop",
+            file=sys.stderr,
+            flush=True,
+        )
+        next_status = time.monotonic() + interval
         while rec.running:
             if args.duration is not None and rec.clock.now() >= args.duration:
                 break
@@ -172,7 +201,7 @@ def run(args: argparse.Namespace) -> int:
     finally:
         signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C must not cut the close
         try:
-            final = rec.stop()
+            final = stop()
         finally:
             signal.signal(signal.SIGINT, signal.default_int_handler)
             printer.finish()
@@ -186,6 +215,19 @@ def run(args: argparse.Namespace) -> int:
         file=sys.stderr,
     )
     return 0
+
+
+def virtual_drive(args: argparse.Namespace, meta: object):
+    """The :class:`fielddiag.virtual_drive.VirtualDrive` of ``--virtual`` (not started)."""
+    from fielddiag.virtual_drive import LOOP_DRIVE_S, VirtualDrive
+
+    if args.daq or args.can or args.signal or args.speed_signal:
+        raise FieldDiagError("--virtual records the virtual DAQ and ECU: give it without "
+                             "--daq, --can, --signal and --speed-signal")
+    once = args.duration is not None
+    return VirtualDrive(
+        args.output, drive_s=args.duration + 2.0 if once else LOOP_DRIVE_S, loop=not once,
+        metadata=meta, seed=args.seed, online=not args.no_online, overwrite=args.overwrite)
 
 
 def threading_main() -> bool:

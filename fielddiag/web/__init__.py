@@ -5,7 +5,9 @@
 * :mod:`fielddiag.web.pages`: one module per page.
 * :mod:`fielddiag.web.charts`: ECharts option dictionaries.
 * :mod:`fielddiag.web.results_view`: drawing identification/diagnosis results.
-* :mod:`fielddiag.web.services`: which parts of the pipeline exist (graceful degradation).
+* :mod:`fielddiag.web.services`: the pipeline's operations the pages call (explicit
+  arguments), and whether each part loads here.
 * :mod:`fielddiag.web.jobs`: long work in the background with progress.
-* :mod:`fielddiag.web.live_control`: sources and recorder of a live recording.
+* :mod:`fielddiag.web.live_control`: the live page's choices, recorded through
+  :mod:`fielddiag.virtual_drive`.
 """

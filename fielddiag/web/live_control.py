@@ -1,36 +1,45 @@
-"""A recording started from the dashboard: its sources (virtual ones included) and recorder.
+"""A recording started from the dashboard: the page's choices, its sources and recorder.
 
-:class:`LiveRecording` turns the choices of the live page (a DAQ, a CAN source, where to
-write) into :mod:`drivers` sources and a :class:`fielddiag.recorder.Recorder`, and for the
-virtual choices also runs the virtual devices behind them: a :class:`VirtualDAQ` on a
-pseudo-terminal streaming a simulated drive in a loop, read through the real serial
-driver, and a :class:`VirtualECU` on a python-can ``virtual`` bus, read through the real
-CAN driver. Everything it starts it stops again in :meth:`stop`.
+:class:`LiveOptions` holds the choices of the live page (a DAQ, a CAN source, where to
+write, the faults of the virtual DAQ) and checks them; :class:`LiveRecording` records
+them through :class:`fielddiag.virtual_drive.VirtualDrive`, the one harness of the virtual
+devices (a :class:`drivers.virtual.VirtualDAQ` on a pseudo-terminal streaming a simulated
+drive in a loop, read through the real serial driver, and a
+:class:`drivers.virtual.VirtualECU` on a python-can ``virtual`` bus, read through the real
+CAN driver), with real sources given by URL alongside. Everything it starts it stops
+again in :meth:`LiveRecording.stop`.
 """
 
 from __future__ import annotations
 
 import os
-import threading
-import uuid
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from fielddiag.channels import SessionMetadata
-from fielddiag.errors import DeviceError, FieldDiagError
+from fielddiag.errors import DeviceError
+from fielddiag.virtual_drive import LOOP_DRIVE_S, VirtualDrive
+
+if TYPE_CHECKING:
+    from fielddiag.recorder import Recorder
 
 VIRTUAL = "virtual"
 NONE = "none"
-VIRTUAL_LOOP_S = 120.0
 
 __all__ = ["LiveOptions", "LiveRecording", "daq_choices", "can_choices"]
 
 
 def daq_choices() -> dict[str, str]:
-    """DAQ sources to offer: the virtual DAQ, then serial ports found on this machine."""
+    """DAQ sources to offer: the virtual DAQ, then serial ports found on this machine.
+
+    Returns
+    -------
+    dict of str to str
+        Choice (``virtual`` or a ``serial://`` URL) to the label shown.
+    """
     out = {VIRTUAL: "virtual DAQ (simulated car, real serial driver on a pty)"}
     try:
         from drivers.serial_daq import list_ports
@@ -43,7 +52,13 @@ def daq_choices() -> dict[str, str]:
 
 
 def can_choices() -> dict[str, str]:
-    """CAN sources to offer."""
+    """CAN sources to offer.
+
+    Returns
+    -------
+    dict of str to str
+        Choice (``none`` or ``virtual``) to the label shown.
+    """
     return {
         NONE: "no CAN",
         VIRTUAL: "virtual ECU (python-can virtual bus, DBC-decoded speed)",
@@ -106,172 +121,130 @@ class LiveOptions:
                               "hold at least 1024 bytes")
 
     def daq_faults(self) -> dict[str, Any]:
-        """The fault keywords of :class:`drivers.virtual.VirtualDAQ`."""
+        """The fault keywords of :class:`drivers.virtual.VirtualDAQ`.
+
+        Returns
+        -------
+        dict
+            ``corrupt_rate``, ``garbage_every_s`` [s], ``stall_at_s`` [s],
+            ``stall_for_s`` [s], ``tx_buffer_bytes`` [bytes].
+        """
         return {"corrupt_rate": self.corrupt_rate, "garbage_every_s": self.garbage_every_s,
                 "stall_at_s": self.stall_at_s, "stall_for_s": self.stall_for_s,
                 "tx_buffer_bytes": self.tx_buffer_bytes}
 
 
 class LiveRecording:
-    """Sources + recorder for one recording started from the dashboard."""
+    """Sources + recorder for one recording started from the dashboard.
+
+    The virtual devices, the recorder, the on-line estimator and the order in which they
+    start and stop are :class:`fielddiag.virtual_drive.VirtualDrive`'s (the harness
+    ``fielddiag demo`` records with); this class turns the page's choices into it and
+    gives the page what it shows.
+
+    Parameters
+    ----------
+    options : LiveOptions
+        What to record and where.
+    """
 
     def __init__(self, options: LiveOptions) -> None:
         self.options = options
-        self.recorder = None
-        self._vdaq = None
-        self._ecu = None
-        self._bus = None
-        self.final_status: dict[str, Any] | None = None
-        self.error: str = ""
-        self.estimator = None
-        self.estimator_error: str = ""
-        self._stop_lock = threading.Lock()
+        self.run: VirtualDrive | None = None
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> LiveRecording:
-        """Open the sources and start recording (raises FieldDiagError with the reason)."""
+        """Start the virtual devices chosen, open the sources, start recording.
+
+        Returns
+        -------
+        LiveRecording
+            self, recording.
+
+        Raises
+        ------
+        FieldDiagError
+            No source chosen, a source URL that is not understood or cannot be opened,
+            a full disk...: the message says which.
+        """
         from drivers.base import open_source
-        from fielddiag.recorder import Recorder
 
         o = self.options
-        meta = o.metadata or SessionMetadata()
-        sources = []
-        drive = None
-        try:
-            if o.daq == VIRTUAL:
-                from drivers.serial_daq import SerialDAQSource
-                from drivers.virtual import VirtualDAQ, simulated_accelerations
-
-                signals, drive = simulated_accelerations(
-                    VIRTUAL_LOOP_S, sample_rate_hz=o.sample_rate_hz,
-                    n_channels=max(2, o.n_channels), added_mass_kg=meta.added_mass_kg,
-                    seed=o.seed,
-                )
-                self._vdaq = VirtualDAQ(signals, sample_rate_hz=o.sample_rate_hz, loop=True,
-                                        seed=o.seed, **o.daq_faults(),
-                                        link_name=f"ttyVDAQ{uuid.uuid4().hex[:6]}").start()
-                sources.append(SerialDAQSource.from_url(f"serial://{self._vdaq.path}"))
-            elif o.daq and o.daq != NONE:
-                sources.append(open_source(o.daq))
-            if o.can == VIRTUAL:
-                sources.append(self._virtual_can(drive, o))
-            elif o.can and o.can != NONE:
-                sources.append(open_source(o.can))
-            if not sources:
-                raise DeviceError("choose a DAQ and/or a CAN source to record")
-            self.recorder = Recorder(o.path, sources, metadata=meta)
-            self.recorder.start()
-            self._attach_estimator(meta)
-            if self._ecu is not None:
-                self._ecu.start()
-        except BaseException:
-            self._stop_devices()
-            raise
+        virtual_daq, virtual_ecu = o.daq == VIRTUAL, o.can == VIRTUAL
+        sources = [open_source(url) for url in (o.daq, o.can)
+                   if url and url not in (VIRTUAL, NONE)]
+        if not (virtual_daq or virtual_ecu or sources):
+            raise DeviceError("choose a DAQ and/or a CAN source to record")
+        self.run = VirtualDrive(
+            o.path, drive_s=LOOP_DRIVE_S, loop=True, virtual_daq=virtual_daq,
+            virtual_ecu=virtual_ecu, sources=sources, metadata=o.metadata,
+            sample_rate_hz=o.sample_rate_hz, n_channels=o.n_channels, seed=o.seed,
+            faults=o.daq_faults() if virtual_daq else None, online=True,
+            include_recipe=False,
+        )
+        self.run.start()
         return self
 
-    def _attach_estimator(self, meta: SessionMetadata) -> None:
-        """Feed the on-line estimator (issue 5) from the recorder, if it exists here."""
-        from fielddiag.web.services import observability_backend
-
-        backend = observability_backend()
-        rec = self.recorder
-        if not backend.available or rec.daq is None:
-            self.estimator_error = backend.reason or "no DAQ: nothing to estimate from"
-            return
-        try:
-            est = backend.target(rec.daq.sample_rate_hz, added_mass_kg=meta.added_mass_kg)
-            rec.block_listeners.append(est.block_listener(rec.channels))
-        except FieldDiagError as exc:  # e.g. no wheel/body channel pair
-            self.estimator_error = str(exc)
-            return
-        self.estimator = est
-
-    def _virtual_can(self, drive: Any, o: LiveOptions):
-        import can
-
-        from drivers.can_vehicle import CanBusSource
-        from drivers.virtual import VirtualECU
-
-        if drive is None:
-            from fielddiag import sim
-
-            drive = sim.simulate(duration_s=VIRTUAL_LOOP_S, seed=o.seed,
-                                 sensor=sim.SensorModel(output_rate_hz=100.0))
-        channel = f"fielddiag-vecu-{uuid.uuid4().hex[:8]}"
-        self._bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
-        self._ecu = VirtualECU(self._bus, drive.vehicle_speed_time_s, drive.vehicle_speed_mps,
-                               loop=True, seed=o.seed)
-        src = CanBusSource.from_url(f"can://virtual/{channel}")
-        src.dbc = self._ecu.db
-        src.dbc_label = "drivers.virtual.VIRTUAL_ECU_DBC"
-        src.add_signals(["vehicle_speed=SPEED.SPEED"]
-                        + [f"WHEEL_SPEEDS.WHEEL_SPEED_{w}" for w in ("FL", "FR", "RL", "RR")])
-        return src
-
-    def _stop_devices(self) -> None:
-        for obj in (self._ecu, self._vdaq):
-            if obj is not None:
-                try:
-                    obj.stop()
-                except Exception:
-                    pass
-        if self._bus is not None:
-            try:
-                self._bus.shutdown()
-            except Exception:
-                pass
-        self._ecu = self._vdaq = self._bus = None
-
     def stop(self) -> dict[str, Any]:
-        """Stop recording, close the session, stop the virtual devices; final status.
+        """Stop recording, close the session, stop the virtual devices.
 
         Safe to call from several threads and more than once.
-        """
-        with self._stop_lock:
-            return self._stop_locked()
 
-    def _stop_locked(self) -> dict[str, Any]:
-        try:
-            if self.recorder is not None and self.final_status is None:
-                try:
-                    self.final_status = self.recorder.stop()
-                except FieldDiagError as exc:
-                    self.error = str(exc)
-                    self.final_status = self.recorder.status()
-        finally:
-            self._stop_devices()
-        return self.final_status or {}
+        Returns
+        -------
+        dict
+            The final status (empty when the recording never started); :attr:`error`
+            says why it failed, if it did.
+        """
+        return self.run.stop() if self.run is not None else {}
 
     # ------------------------------------------------------------------ live access
     @property
+    def recorder(self) -> Recorder | None:
+        """The :class:`fielddiag.recorder.Recorder` (None before the start)."""
+        return self.run.recorder if self.run is not None else None
+
+    @property
+    def error(self) -> str:
+        """Why the recording failed ("" while it has not)."""
+        err = self.run.error if self.run is not None else None
+        return str(err) if err is not None else ""
+
+    @property
     def running(self) -> bool:
-        return self.recorder is not None and self.recorder.running
+        """True while recording."""
+        return self.run is not None and self.run.running
 
     @property
     def t0_unix_s(self) -> float:
-        """Wall-clock time of session time zero."""
+        """Wall-clock time of session time zero [s since the epoch]; 0 before the start."""
         clock = getattr(self.recorder, "clock", None)
         return float(clock.t0_unix_s) if clock is not None else 0.0
 
     def status(self) -> dict[str, Any]:
-        if self.recorder is None:
-            return {"state": "new"}
-        st = self.recorder.status()
-        if self.error and not st.get("last_error"):
-            st["last_error"] = self.error
-        return st
+        """The live status (:meth:`fielddiag.virtual_drive.VirtualDrive.status`)."""
+        return self.run.status() if self.run is not None else {"state": "new"}
 
     def latest(self, seconds: float) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """The last ``seconds`` [s] of DAQ data: (time [s], {channel: calibrated values})."""
         if self.recorder is None:
             return np.zeros(0), {}
         return self.recorder.latest(seconds)
 
     def latest_signals(self, seconds: float) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-        if self.recorder is None or not hasattr(self.recorder, "latest_signals"):
+        """The last ``seconds`` [s] of every vehicle signal: {name: (time [s], value [SI])}."""
+        if self.recorder is None:
             return {}
         return self.recorder.latest_signals(seconds)
 
     def add_event(self, label: str) -> float:
+        """Mark now with ``label``; returns its session time [s].
+
+        Raises
+        ------
+        DeviceError
+            Not recording.
+        """
         if self.recorder is None or not self.running:
             raise DeviceError("not recording: start a recording before marking events")
         return self.recorder.add_event(label)
@@ -279,12 +252,19 @@ class LiveRecording:
     def observability(self) -> dict[str, Any] | None:
         """The on-line estimator's status (parameters with their information and state,
         and advice for the technician), or None when no estimator runs."""
-        if self.estimator is None:
-            return None
-        return self.estimator.status()
+        online = getattr(self.recorder, "online", None)
+        return online.status() if online is not None else None
+
+    @property
+    def estimator_error(self) -> str:
+        """Why there is no on-line estimate ("" when there is one, or not yet)."""
+        if self.run is None:
+            return ""
+        return self.run.online_error or getattr(self.recorder, "online_error", "")
 
     @property
     def units(self) -> dict[str, str]:
+        """Unit of every channel and signal recorded, by name."""
         rec = self.recorder
         out = {c.name: c.unit for c in getattr(rec, "channels", [])}
         out.update({s.name: s.unit for s in getattr(rec, "signals", [])})
@@ -292,4 +272,5 @@ class LiveRecording:
 
     @property
     def path(self) -> Path:
+        """The session file."""
         return Path(os.fspath(self.options.path))

@@ -22,7 +22,7 @@ from fielddiag.web.charts import xy_options
 from fielddiag.web.layout import not_available, notify_error, notify_exception, page_title
 from fielddiag.web.pages.identify import write_result
 from fielddiag.web.results_view import render_diagnosis
-from fielddiag.web.services import call_with_supported, diagnosis_backend, load_result
+from fielddiag.web.services import diagnosis_backend, load_result
 
 KIND = "diagnose"
 #: A diagnosis of one drive alone is stored under its own name, so that it never
@@ -33,20 +33,38 @@ NO_SECOND = ""
 
 def run_diagnosis(target, sessions: list[Path], out: Path, added_mass_kg: float | None = None,
                   progress=None) -> dict[str, Any]:
-    """Diagnose one session or a pair, store the result as JSON at ``out``, return it."""
+    """Diagnose one session or a pair, store the result as JSON at ``out``, return it.
+
+    Parameters
+    ----------
+    target : callable
+        :func:`fielddiag.web.services.diagnose_drives` (or a stand-in with its signature).
+    sessions : list of Path
+        One session file or a before/after pair.
+    out : Path
+        Where the result JSON goes.
+    added_mass_kg : float or None
+        Mass added for the second drive of a pair [kg]; not used for one drive.
+    progress : callable or None
+        ``progress(None, message)``: the diagnosis says what it does, not how far.
+
+    Returns
+    -------
+    dict
+        The result as stored (``session_paths`` included).
+
+    Raises
+    ------
+    FieldDiagError
+        The drives cannot be diagnosed (the engine's message).
+    """
 
     def said(message: Any) -> None:  # the engine reports what it is doing, not how far
         if progress is not None:
             progress(None, str(message))
 
-    import inspect
-
-    first = next(iter(inspect.signature(target).parameters), "")
-    args: tuple = (sessions,) if first in ("paths", "sessions") else tuple(sessions)
-    kw: dict[str, Any] = {"progress": said}
-    if added_mass_kg is not None and len(sessions) > 1:
-        kw["added_mass_kg"] = added_mass_kg
-    result = call_with_supported(target, *args, **kw)
+    mass = added_mass_kg if len(sessions) > 1 else None
+    result = target(list(sessions), added_mass_kg=mass, progress=said)
     d = result.to_dict() if hasattr(result, "to_dict") else dict(result)
     d.setdefault("session_paths", [p.name for p in sessions])
     write_result(out, d)

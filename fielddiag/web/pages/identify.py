@@ -22,7 +22,7 @@ from fielddiag.pairs import pair_of
 from fielddiag.validate import number
 from fielddiag.web.layout import not_available, notify_error, notify_exception, page_title
 from fielddiag.web.results_view import render_identification
-from fielddiag.web.services import call_with_supported, identification_backend, load_result
+from fielddiag.web.services import identification_backend, load_result
 
 KIND = "identify"
 
@@ -45,12 +45,34 @@ def write_result(path: Path, result: dict[str, Any]) -> None:
 def run_identification(
     target, before: Path, after: Path, added_mass_kg: float, out: Path, progress=None
 ) -> dict[str, Any]:
-    """Call the pipeline on a pair, store its result as JSON at ``out``, return the dict."""
+    """Call the pipeline on a pair, store its result as JSON at ``out``, return the dict.
+
+    Parameters
+    ----------
+    target : callable
+        :func:`fielddiag.web.services.identify_pair` (or a stand-in with its signature).
+    before, after : Path
+        Session files of the pair.
+    added_mass_kg : float
+        Mass added for the second drive [kg].
+    out : Path
+        Where the result JSON goes.
+    progress : callable or None
+        ``progress(fraction, message)``.
+
+    Returns
+    -------
+    dict
+        The result as stored (``added_mass_kg`` included).
+
+    Raises
+    ------
+    FieldDiagError
+        The pair cannot be identified (the pipeline's message).
+    """
     if progress is not None:
         progress(0.0, "identifying (spectra, noise floors, band, both routes, jackknife)")
-    result = call_with_supported(
-        target, before, after, added_mass_kg=added_mass_kg, progress=progress
-    )
+    result = target(before, after, added_mass_kg=added_mass_kg, progress=progress)
     if progress is not None:
         progress(0.95, "writing the result")
     d = result.to_dict() if hasattr(result, "to_dict") else dict(result)
