@@ -190,6 +190,10 @@ def test_scoring_reads_warnings_findings_and_ride_height() -> None:
     assert rs.score_case(case, out, 0.1, ("bump_stop",))["right_for_ride_height"] is False
     del out["findings"][1]["ride_height"]
     assert rs.score_case(case, out, 0.1, ("bump_stop",))["right_for_ride_height"] is True
+    # a floor fit that failed (NaN) leaves the strength unknown, never a bin
+    row = rs.score_case(case, out, float("nan"), ("bump_stop",))
+    assert row["strength_ratio"] is None and row["strength_bin"] == "n/a"
+    json.dumps(row, allow_nan=False)
     # an effect the diagnosis does not try is expected as "unexplained"
     assert rs.expected_names([("quadratic_damping", {})], ("bump_stop",)) == ["unexplained"]
     assert not rs.position_dependent("coulomb_friction", {"friction_force_n": 50.0})
