@@ -138,6 +138,15 @@ def strength_bin(ratio: float | None) -> str:
     return next(lab for lo, hi, lab in STRENGTH_BINS if lo <= ratio < hi)
 
 
+def _finite(x: Any) -> float | None:
+    """``x`` as a float, or None if missing or not finite (a fit that failed)."""
+    try:
+        x = float(x)
+    except (TypeError, ValueError):
+        return None
+    return x if math.isfinite(x) else None
+
+
 def score_case(case: Any, out: dict[str, Any], floor_nrmse: float | None,
                library: tuple[str, ...]) -> dict[str, Any]:
     """One flat, JSON-serialisable row: the truth, what was reported, and the verdicts.
@@ -156,7 +165,8 @@ def score_case(case: Any, out: dict[str, Any], floor_nrmse: float | None,
     found = suspension_findings(out)
     named = [f.get("effect", "?") for f in found]
     expected = expected_names(effects, library)
-    lin = out.get("baseline", {}).get("nrmse_validation")
+    lin = _finite(out.get("baseline", {}).get("nrmse_validation"))
+    floor_nrmse = _finite(floor_nrmse)
     ratio = None if floor_nrmse is None or lin is None or floor_nrmse <= 0 else lin / floor_nrmse
     errs = param_errors(effects, found)
     reported = data_problems_reported(out)

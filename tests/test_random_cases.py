@@ -190,7 +190,40 @@ def test_scoring_reads_warnings_findings_and_ride_height() -> None:
     assert rs.score_case(case, out, 0.1, ("bump_stop",))["right_for_ride_height"] is False
     del out["findings"][1]["ride_height"]
     assert rs.score_case(case, out, 0.1, ("bump_stop",))["right_for_ride_height"] is True
+    # a floor fit that failed (NaN) leaves the strength unknown, never a bin
+    row = rs.score_case(case, out, float("nan"), ("bump_stop",))
+    assert row["strength_ratio"] is None and row["strength_bin"] == "n/a"
+    json.dumps(row, allow_nan=False)
     # an effect the diagnosis does not try is expected as "unexplained"
     assert rs.expected_names([("quadratic_damping", {})], ("bump_stop",)) == ["unexplained"]
     assert not rs.position_dependent("coulomb_friction", {"friction_force_n": 50.0})
     assert rs.position_dependent("cubic_stiffness", {"cubic_stiffness_n_per_m3": 1e6})
+
+
+def test_tables_from_rows() -> None:
+    """The benchmark's tables are computed from saved rows only (here: scored fake outputs)."""
+    import bench_random
+
+    lin = rc.draw_case(LINEAR_SEED)
+    bump = rc.draw_case(BUMP_SEED)
+    fric = rc.draw_case(NUISANCE_SEED)
+    quiet = {"verdict": "adequate", "baseline": {"nrmse_validation": 0.1}, "findings": [],
+             "warnings": []}
+    alarm = {**quiet, "verdict": "missing_physics",
+             "findings": [{"effect": "coulomb_friction", "parameters": {}}]}
+    found = {**quiet, "verdict": "missing_physics", "baseline": {"nrmse_validation": 0.5},
+             "findings": [{"effect": "bump_stop", "parameters": dict(bump.effects[0][1])}],
+             "warnings": [{"kind": "sensor_gain_changed"}]}
+    lib = ("bump_stop", "coulomb_friction")
+    rows = [rs.score_case(lin, quiet, None, lib), rs.score_case(lin, alarm, None, lib),
+            rs.score_case(bump, found, 0.1, lib), rs.score_case(fric, quiet, None, lib)]
+    rows = json.loads(json.dumps(rows))  # as saved
+    text = "\n".join(bench_random.report(rows, [{"seed": 1, "family": "x", "error": "E: e"}]))
+    assert "false alarms on linear cases (<= 5 %)            1/2 (50 %)" in text
+    assert "top-1, library effects >= 2x floor (>= 95 %)     1/1 (100 %)" in text
+    line = next(ln for ln in text.splitlines() if ln.startswith("bump_stop "))
+    assert line.split()[1:6] == ["1", "-", "-", "-", "1/1"]  # ratio 5: the >4x bin
+    # a gain change reported where none was drawn is counted as invented
+    gain = next(ln for ln in text.splitlines() if ln.startswith("gain_change"))
+    assert gain.endswith("1/3 (33 %)")
+    assert "cases that raised: 1" in text and "seed 1 (x): E: e" in text
