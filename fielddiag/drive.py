@@ -365,9 +365,9 @@ def read_corner_drive(
                                         "longer stretch")
         stamps, fs, pieces = _time_base(s, i0, i1, purpose)
         if require_continuous and len(pieces) > 1:
-            t_gap = float(s.time_at(i0 + pieces[0][1] - 1, i0 + pieces[0][1])[0])
+            ta, tb = s.time_at(i0 + pieces[0][1] - 1, i0 + pieces[0][1] + 1)
             raise InsufficientDataError(
-                f"{name} has gaps in its time base (the first after {t_gap:.2f} s); "
+                f"{name} has gaps in its time base (the first between {ta:.2f} and {tb:.2f} s); "
                 f"{purpose} needs a continuous recording ({gap_advice})")
         wheel = s.read(wch.name, start_s, end_s) * fw
         body = s.read(bch.name, start_s, end_s) * fb
