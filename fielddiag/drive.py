@@ -251,8 +251,9 @@ def accel_unit_factor(unit: str, channel: str = "") -> float:
 
     Examples
     --------
-    >>> accel_unit_factor("g")
-    9.80665
+    >>> from fielddiag.units import GRAVITY_MPS2
+    >>> accel_unit_factor("g") == accel_unit_factor(" G ") == GRAVITY_MPS2
+    True
     """
     try:
         return factor_to_si(unit, "acceleration")
