@@ -67,7 +67,8 @@ def run(name: str, floor: bool = False) -> dict:
     before, after = simulate_scenario(sc)
     drives = [
         Drive(
-            lab, name, d.sample_rate_hz, 0.0, d.wheel_accel_mps2, d.body_accel_mps2, d.added_mass_kg
+            d.wheel_accel_mps2, d.body_accel_mps2, d.sample_rate_hz,
+            added_mass_kg=d.added_mass_kg, label=lab, name=name,
         )
         for lab, d in (("before", before), ("after", after))
     ]

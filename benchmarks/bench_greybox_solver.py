@@ -42,8 +42,8 @@ def main(names: list[str]) -> None:
     for name in names:
         sc = SCENARIOS[name]
         before, after = simulate_scenario(sc)
-        drives = [Drive(lab, name, d.sample_rate_hz, 0.0, d.wheel_accel_mps2,
-                        d.body_accel_mps2, d.added_mass_kg)
+        drives = [Drive(d.wheel_accel_mps2, d.body_accel_mps2, d.sample_rate_hz,
+                        added_mass_kg=d.added_mass_kg, label=lab, name=name)
                   for lab, d in (("before", before), ("after", after))]
         band, rate = _band_and_rate(drives, None, 0.3, 125.0)
         prep = [_prepare(d, band, rate, 0.3) for d in drives]

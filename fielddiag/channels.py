@@ -9,10 +9,14 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
+#: The corners of a car: front left, front right, rear left, rear right.
+CORNERS = ("fl", "fr", "rl", "rr")
 #: Roles a DAQ channel can play. ``wheel`` is below the suspension (unsprung side),
-#: ``body`` above it (sprung side). Rig tests use ``force``, ``displacement`` and
-#: ``acceleration``. Anything else is ``other``.
-CHANNEL_ROLES = ("wheel", "body", "force", "displacement", "acceleration", "speed", "other")
+#: ``body`` above it (sprung side); a full-vehicle session has ``wheel_fl``, ``body_fl``...
+#: per corner instead. Rig tests use ``force``, ``displacement`` and ``acceleration``.
+#: Anything else is ``other``.
+CHANNEL_ROLES = ("wheel", "body", "force", "displacement", "acceleration", "speed", "other",
+                 *(f"{kind}_{c}" for c in CORNERS for kind in ("wheel", "body")))
 
 #: Counters a recording keeps (frames received, lost, CRC errors, ...). A session stores
 #: every counter here; drivers that do not produce one leave it at zero.

@@ -107,6 +107,25 @@ def band_window(freq_hz: np.ndarray, band_hz: tuple[float, float], taper: float 
     The lower taper runs from ``low * (1 - taper)`` to ``low``, the upper one from ``high``
     to ``high * (1 + taper)``; the weights are 0 beyond. Smooth edges keep the impulse
     response of a frequency-domain filter short (little ringing at the record ends).
+
+    Parameters
+    ----------
+    freq_hz : ndarray
+        Frequencies at which to give the weights [Hz].
+    band_hz : (float, float)
+        The pass band (low, high) [Hz].
+    taper : float
+        Width of each taper as a fraction of its band edge.
+
+    Returns
+    -------
+    ndarray
+        Weights in [0, 1], one per frequency (dimensionless).
+
+    Examples
+    --------
+    >>> band_window(np.array([0.5, 1.0, 5.0, 20.0]), (1.0, 10.0)).tolist()
+    [0.0, 1.0, 1.0, 0.0]
     """
     f = np.asarray(freq_hz, dtype=float)
     lo, hi = band_hz
@@ -133,6 +152,17 @@ class IntegratedMotion:
 
     All three are band-limited by the same filter, so a linear equation that holds between
     the true signals also holds between these (in the band).
+
+    Attributes
+    ----------
+    sample_rate_hz : float
+        Sample rate of the three arrays [Hz] (the output rate when resampled).
+    band_hz : (float, float)
+        Band in which they are valid [Hz].
+    acceleration_mps2, velocity_mps, displacement_m : ndarray
+        The band-limited acceleration [m/s^2], velocity [m/s] and displacement [m].
+    method : str
+        ``frequency`` or ``time`` (the integration route used).
     """
 
     sample_rate_hz: float
@@ -261,7 +291,42 @@ def integrate_pair(
     output_rate_hz: float | None = None,
     taper: float = 0.3,
 ) -> tuple[IntegratedMotion, IntegratedMotion]:
-    """Integrate two channels of one recording with the same frequency-domain filter."""
+    """Integrate two channels of one recording with the same frequency-domain filter.
+
+    The wheel and body motion go through one filter, so that the body model driven by the
+    wheel motion is compared with a body acceleration limited in the same way.
+
+    Parameters
+    ----------
+    wheel_mps2, body_mps2 : ndarray
+        Equal-length accelerometer readings [m/s^2] (gravity, bias and drift allowed: the
+        band removes them).
+    sample_rate_hz : float
+        Sample rate [Hz].
+    band_hz : (float, float)
+        Band in which the integrated signals are valid [Hz].
+    output_rate_hz : float or None
+        Resample the result to this rate [Hz] (None: keep ``sample_rate_hz``).
+    taper : float
+        Width of the band's raised-cosine tapers (see :func:`band_window`).
+
+    Returns
+    -------
+    wheel, body : IntegratedMotion
+        Acceleration [m/s^2], velocity [m/s] and displacement [m] of each channel.
+
+    Raises
+    ------
+    ValueError
+        The band does not fit the record (see :func:`integrate_acceleration`).
+
+    Examples
+    --------
+    >>> t = np.arange(20000) / 200.0
+    >>> w, b = integrate_pair(np.sin(2 * np.pi * 2 * t), np.zeros_like(t), 200.0, (0.5, 20))
+    >>> round(float(np.std(w.displacement_m)) * (2 * np.pi * 2) ** 2, 1)  # about 1/sqrt(2)
+    0.7
+    """
     fs_out, res = _fft_integrate([np.asarray(wheel_mps2, float), np.asarray(body_mps2, float)],
                                  sample_rate_hz, band_hz, output_rate_hz, taper)
     band = (float(band_hz[0]), float(band_hz[1]))
@@ -278,7 +343,21 @@ class CrossSpectra:
     """Averaged one-sided spectral densities of an input x and an output y.
 
     ``gxy = E[conj(X) Y]`` (the convention of :func:`scipy.signal.csd`), so H1 = gxy/gxx.
-    Units: (unit of x)^2/Hz etc.
+
+    Attributes
+    ----------
+    freq_hz : ndarray
+        Frequency lines [Hz].
+    gxx, gyy : ndarray
+        Auto spectral densities of x and y [(unit of x)^2/Hz, (unit of y)^2/Hz].
+    gxy : ndarray of complex
+        Cross spectral density [(unit of x)(unit of y)/Hz].
+    n_averages : int
+        Number of Welch segments averaged.
+    sample_rate_hz : float
+        Sample rate of the signals [Hz].
+    segment_s : float
+        Welch segment length [s].
     """
 
     freq_hz: np.ndarray
@@ -331,6 +410,7 @@ class BlockCrossSpectra:
 
     @property
     def n_blocks(self) -> int:
+        """Number of time blocks."""
         return int(self.n_segments.size)
 
     def _avg(self, keep: np.ndarray) -> CrossSpectra:
@@ -359,7 +439,29 @@ class BlockCrossSpectra:
 
 def contiguous_pieces(time_s: np.ndarray | None, n: int, sample_rate_hz: float,
                       tolerance: float = 0.5) -> list[tuple[int, int]]:
-    """Index ranges [i0, i1) without gaps: a step above (1 + tolerance)/rate breaks a piece."""
+    """Index ranges [i0, i1) without gaps: a step above (1 + tolerance)/rate breaks a piece.
+
+    Parameters
+    ----------
+    time_s : ndarray or None
+        Sample times [s]; None for a uniform time base (one piece).
+    n : int
+        Number of samples.
+    sample_rate_hz : float
+        Nominal sample rate [Hz].
+    tolerance : float
+        A step longer than ``(1 + tolerance)`` sample periods, or not positive, is a gap.
+
+    Returns
+    -------
+    list of (int, int)
+        The contiguous index ranges, in order.
+
+    Examples
+    --------
+    >>> contiguous_pieces(np.array([0.0, 0.01, 0.02, 0.5, 0.51]), 5, 100.0)
+    [(0, 3), (3, 5)]
+    """
     if time_s is None or n < 2:
         return [(0, n)]
     dt = np.diff(np.asarray(time_s, dtype=float))
@@ -503,7 +605,30 @@ def spectrum_on_grid(freq_hz: np.ndarray, values: np.ndarray, grid_hz: np.ndarra
 
 def welch_psd(x: np.ndarray, sample_rate_hz: float, segment_s: float) -> tuple[np.ndarray,
                                                                                  np.ndarray]:
-    """One-sided PSD by Welch (Hann, 50 % overlap, linear detrend): (freq_hz, psd)."""
+    """One-sided PSD by Welch (Hann, 50 % overlap, linear detrend): (freq_hz, psd).
+
+    Parameters
+    ----------
+    x : ndarray
+        The signal, uniformly sampled.
+    sample_rate_hz : float
+        Sample rate [Hz].
+    segment_s : float
+        Welch segment length [s] (at most the whole record); the resolution is its inverse.
+
+    Returns
+    -------
+    freq_hz : ndarray
+        Frequency lines [Hz].
+    psd : ndarray
+        One-sided power spectral density [(unit of x)^2/Hz].
+
+    Examples
+    --------
+    >>> f, p = welch_psd(np.random.default_rng(0).normal(size=20000), 100.0, 10.0)
+    >>> round(float(np.mean(p[1:-1])), 2)  # white noise of variance 1: 2/fs per Hz
+    0.02
+    """
     nper = min(int(round(segment_s * sample_rate_hz)), np.asarray(x).size)
     return signal.welch(np.asarray(x, float), sample_rate_hz, nperseg=nper, detrend="linear")
 
@@ -661,8 +786,32 @@ def find_spectral_peaks(
 ) -> list[tuple[float, float]]:
     """Local maxima of a magnitude curve, most prominent first: [(freq_hz, magnitude)].
 
-    ``min_prominence`` is relative to the largest value in the band (log-free, so give a
-    magnitude, not a PSD in dB).
+    Each peak is refined by a parabola through its line and the two neighbours.
+
+    Parameters
+    ----------
+    freq_hz : ndarray
+        Frequency lines [Hz].
+    magnitude : ndarray
+        The curve (a transmissibility magnitude, a PSD; not in dB).
+    max_peaks : int
+        Most peaks returned.
+    min_prominence : float
+        Least prominence, as a fraction of the largest value in the band.
+    band_hz : (float, float) or None
+        Only look in this band [Hz].
+
+    Returns
+    -------
+    list of (float, float)
+        (frequency [Hz], magnitude) of each peak, most prominent first; empty when the
+        band holds fewer than three lines.
+
+    Examples
+    --------
+    >>> f = np.linspace(0, 10, 101)
+    >>> [(round(a, 2), round(b, 2)) for a, b in find_spectral_peaks(f, np.exp(-(f - 3) ** 2))]
+    [(3.0, 1.0)]
     """
     f = np.asarray(freq_hz, float)
     m = np.asarray(magnitude, float)

@@ -193,13 +193,12 @@ def diagnose_scenario(sc: Scenario | str, **overrides: Any) -> dict[str, Any]:
     before, after = simulate_scenario(sc)
     drives = [
         Drive(
-            label,
-            sc.name,
-            d.sample_rate_hz,
-            0.0,
             d.wheel_accel_mps2,
             d.body_accel_mps2,
-            d.added_mass_kg,
+            d.sample_rate_hz,
+            added_mass_kg=d.added_mass_kg,
+            label=label,
+            name=sc.name,
         )
         for label, d in (("before", before), ("after", after))
     ]

@@ -92,14 +92,49 @@ def _software_version() -> str:
 
 def safe_name(text: str, default: str = "channel") -> str:
     """A valid channel or signal name made from any text (a CSV column, an MDF channel, a
-    DBC signal): characters other than letters, digits, '_', '-' and '.' become '_'
-    (``acc x [g]`` -> ``acc_x__g_``)."""
+    DBC signal): characters other than letters, digits, '_', '-' and '.' become '_'.
+
+    Parameters
+    ----------
+    text : str
+        Any text; surrounding blanks are dropped.
+    default : str
+        The name given to an empty text.
+
+    Returns
+    -------
+    str
+
+    Examples
+    --------
+    >>> safe_name("acc x [g]"), safe_name("  ")
+    ('acc_x__g_', 'channel')
+    """
     return re.sub(r"[^A-Za-z0-9_.\-]", "_", text.strip()) or default
 
 
 def unique_name(text: str, taken: set[str], default: str = "channel") -> str:
-    """:func:`safe_name` of ``text``, with ``_2``, ``_3``... until it is not in ``taken``;
-    the name returned is added to ``taken``."""
+    """:func:`safe_name` of ``text``, with ``_2``, ``_3``... until it is not in ``taken``.
+
+    Parameters
+    ----------
+    text : str
+        Any text.
+    taken : set of str
+        Names already used; the name returned is added to it.
+    default : str
+        The name given to an empty text.
+
+    Returns
+    -------
+    str
+
+    Examples
+    --------
+    >>> taken = {"speed"}
+    >>> unique_name("speed", taken), unique_name("speed", taken)
+    ('speed_2', 'speed_3')
+    """
     base = safe_name(text, default)
     name, k = base, 2
     while name in taken:
@@ -371,7 +406,24 @@ class SessionWriter:
                 self._write_pending()
 
     def append_signal(self, name: str, time_s: np.ndarray, value: np.ndarray) -> None:
-        """Append samples of one vehicle signal (session time, calibrated value)."""
+        """Append samples of one vehicle signal.
+
+        Parameters
+        ----------
+        name : str
+            A signal declared when the session was created.
+        time_s : ndarray
+            Session time of each sample [s].
+        value : ndarray
+            The calibrated values, in the signal's unit.
+
+        Raises
+        ------
+        ChannelNotFoundError
+            The signal was not declared.
+        SessionError
+            ``time_s`` and ``value`` differ in length, or the writer is closed.
+        """
         self._check_open()
         if name not in self._pending_signals:
             raise ChannelNotFoundError(
@@ -388,7 +440,19 @@ class SessionWriter:
             self._pending_signals[name].append((t, v))
 
     def append_can_frames(self, frames: np.ndarray) -> None:
-        """Append raw CAN frames (a structured array of :data:`CAN_FRAME_DTYPE`)."""
+        """Append raw CAN frames.
+
+        Parameters
+        ----------
+        frames : ndarray
+            A structured array of :data:`CAN_FRAME_DTYPE` (session time [s], id, bus,
+            flags, dlc, data).
+
+        Raises
+        ------
+        SessionError
+            The session was created without ``store_can_frames=True``.
+        """
         self._check_open()
         if "can_frames" not in self._file:
             raise SessionError("this session was created without store_can_frames=True")
@@ -398,19 +462,48 @@ class SessionWriter:
                 self._pending_frames.append(arr)
 
     def add_event(self, time_s: float, label: str) -> None:
-        """Record a labelled instant (session time)."""
+        """Record a labelled instant.
+
+        Parameters
+        ----------
+        time_s : float
+            Session time [s].
+        label : str
+            What happened (``speed_bump``, ``button``); at most 128 UTF-8 bytes are kept.
+        """
         self._check_open()
         with self._lock:
             self._pending_events.append((float(time_s), str(label)))
 
     def add_gap(self, start_s: float, end_s: float, samples_lost: int, cause: str) -> None:
-        """Record a stretch without samples: where, how many samples were lost and why."""
+        """Record a stretch without samples: where, how many samples were lost and why.
+
+        Parameters
+        ----------
+        start_s, end_s : float
+            Session time of the last sample before and the first after the gap [s].
+        samples_lost : int
+            Samples per channel that did not arrive.
+        cause : str
+            Why (``sequence gap``, ``usb stall``); at most 64 UTF-8 bytes are kept.
+        """
         self._check_open()
         with self._lock:
             self._pending_gaps.append((float(start_s), float(end_s), int(samples_lost), cause))
 
     def set_counters(self, **counters: int) -> None:
-        """Set recording counters (absolute values), e.g. ``frames_lost=3``."""
+        """Set recording counters (absolute values), e.g. ``frames_lost=3``.
+
+        Parameters
+        ----------
+        **counters : int
+            Values of counters named in :data:`fielddiag.channels.COUNTER_NAMES`.
+
+        Raises
+        ------
+        SessionError
+            A name is not a counter.
+        """
         unknown = set(counters) - set(COUNTER_NAMES)
         if unknown:
             raise SessionError(f"unknown counters {sorted(unknown)}; known: {COUNTER_NAMES}")
@@ -425,6 +518,7 @@ class SessionWriter:
 
     @property
     def counters(self) -> dict[str, int]:
+        """The recording counters set so far (name -> value)."""
         with self._lock:
             return dict(self._counters)
 
@@ -807,7 +901,21 @@ class SessionReader:
 
     # ------------------------------------------------------------------ channels
     def channel(self, name: str) -> ChannelSpec:
-        """The channel called ``name``."""
+        """The channel called ``name``.
+
+        Parameters
+        ----------
+        name : str
+
+        Returns
+        -------
+        ChannelSpec
+
+        Raises
+        ------
+        ChannelNotFoundError
+            No channel has that name (the message lists them).
+        """
         for c in self.channels:
             if c.name == name:
                 return c
@@ -817,10 +925,37 @@ class SessionReader:
         )
 
     def channels_for_role(self, role: str) -> list[ChannelSpec]:
+        """The channels with ``role`` (``wheel``, ``body``, ``force``...), possibly none.
+
+        A corner's accelerometers are found, with a message that says where to mount a
+        missing one, by :func:`fielddiag.drive.find_channel`.
+
+        Parameters
+        ----------
+        role : str
+
+        Returns
+        -------
+        list of ChannelSpec
+        """
         return [c for c in self.channels if c.role == role]
 
     def channel_for_role(self, role: str) -> ChannelSpec:
-        """The one channel with ``role`` (``wheel``, ``body``...); an error if none or several."""
+        """The one channel with ``role`` (``force``, ``displacement``...).
+
+        Parameters
+        ----------
+        role : str
+
+        Returns
+        -------
+        ChannelSpec
+
+        Raises
+        ------
+        ChannelNotFoundError
+            No channel or several channels have the role.
+        """
         found = self.channels_for_role(role)
         if not found:
             have = ", ".join(f"{c.name} ({c.role})" for c in self.channels) or "none"
@@ -838,7 +973,18 @@ class SessionReader:
     def index_range(
         self, start_s: float | None = None, end_s: float | None = None
     ) -> tuple[int, int]:
-        """Sample indices [i0, i1) of the DAQ samples with start_s <= t < end_s."""
+        """Sample indices [i0, i1) of the DAQ samples with start_s <= t < end_s.
+
+        Parameters
+        ----------
+        start_s, end_s : float or None
+            Session time limits [s]; None: from the first / to the last sample.
+
+        Returns
+        -------
+        (int, int)
+            Clipped to [0, :attr:`n_samples`], ``i1 >= i0``.
+        """
         n = self.n_samples
         if self.time_base == "uniform":
             fs, t0 = self.sample_rate_hz, self._t0_s
@@ -853,18 +999,58 @@ class SessionReader:
         return i0, i1
 
     def time_s(self, start_s: float | None = None, end_s: float | None = None) -> np.ndarray:
-        """DAQ sample times in [start_s, end_s)."""
+        """DAQ sample times in [start_s, end_s).
+
+        Parameters
+        ----------
+        start_s, end_s : float or None
+            Session time limits [s].
+
+        Returns
+        -------
+        ndarray
+            Session time of each sample [s].
+        """
         i0, i1 = self.index_range(start_s, end_s)
         return self.time_at(i0, i1)
 
     def time_at(self, i0: int, i1: int) -> np.ndarray:
-        """DAQ sample times of indices [i0, i1)."""
+        """DAQ sample times of indices [i0, i1).
+
+        Parameters
+        ----------
+        i0, i1 : int
+            Sample indices.
+
+        Returns
+        -------
+        ndarray
+            Session time of each sample [s].
+        """
         if self.time_base == "timestamps":
             return self._file["daq/time_s"][i0:i1]
         return self._t0_s + np.arange(i0, i1, dtype="f8") / self.sample_rate_hz
 
     def read_raw(self, name: str, i0: int = 0, i1: int | None = None) -> np.ndarray:
-        """Raw samples of a channel by index, exactly as stored."""
+        """Raw samples of a channel by index, exactly as stored (calibration not applied).
+
+        Parameters
+        ----------
+        name : str
+            The channel.
+        i0, i1 : int
+            Sample indices [i0, i1); ``i1`` None: to the end.
+
+        Returns
+        -------
+        ndarray
+            The stored dtype (``int16``, ``float64``...).
+
+        Raises
+        ------
+        ChannelNotFoundError
+            No such channel.
+        """
         self.channel(name)
         i1 = self.n_samples if i1 is None else i1
         return self._file["daq/channels"][name][i0:i1]
@@ -877,7 +1063,29 @@ class SessionReader:
         *,
         raw: bool = False,
     ) -> np.ndarray:
-        """Samples of channel ``name`` with start_s <= t < end_s, calibrated unless ``raw``."""
+        """Samples of channel ``name`` with start_s <= t < end_s, calibrated unless ``raw``.
+
+        Parameters
+        ----------
+        name : str
+            The channel.
+        start_s, end_s : float or None
+            Session time limits [s].
+        raw : bool
+            Return the stored samples without the calibration.
+
+        Returns
+        -------
+        ndarray
+            ``raw * scale + offset`` in the channel's unit (float64), or the stored samples.
+            Units are converted to SI by :mod:`fielddiag.units` (for a corner's
+            accelerometers, by :func:`fielddiag.drive.read_corner_drive`).
+
+        Raises
+        ------
+        ChannelNotFoundError
+            No such channel.
+        """
         spec = self.channel(name)
         i0, i1 = self.index_range(start_s, end_s)
         data = self._file["daq/channels"][name][i0:i1]
@@ -893,7 +1101,22 @@ class SessionReader:
     def read_with_time(
         self, name: str, start_s: float | None = None, end_s: float | None = None
     ) -> tuple[np.ndarray, np.ndarray]:
-        """(time_s, calibrated values) of channel ``name`` in [start_s, end_s)."""
+        """(time_s, calibrated values) of channel ``name`` in [start_s, end_s).
+
+        Parameters
+        ----------
+        name : str
+            The channel.
+        start_s, end_s : float or None
+            Session time limits [s].
+
+        Returns
+        -------
+        time_s : ndarray
+            Session time of each sample [s].
+        values : ndarray
+            Calibrated samples, in the channel's unit.
+        """
         i0, i1 = self.index_range(start_s, end_s)
         values = self.read(name, start_s, end_s)
         return self.time_at(i0, i1), values
@@ -901,11 +1124,43 @@ class SessionReader:
     def read_role(
         self, role: str, start_s: float | None = None, end_s: float | None = None
     ) -> np.ndarray:
-        """Calibrated samples of the one channel with ``role``."""
+        """Calibrated samples of the one channel with ``role``.
+
+        Parameters
+        ----------
+        role : str
+        start_s, end_s : float or None
+            Session time limits [s].
+
+        Returns
+        -------
+        ndarray
+            In the channel's unit.
+
+        Raises
+        ------
+        ChannelNotFoundError
+            No channel or several channels have the role.
+        """
         return self.read(self.channel_for_role(role).name, start_s, end_s)
 
     # ------------------------------------------------------------------ signals
     def signal_spec(self, name: str) -> SignalSpec:
+        """The vehicle signal called ``name``.
+
+        Parameters
+        ----------
+        name : str
+
+        Returns
+        -------
+        SignalSpec
+
+        Raises
+        ------
+        ChannelNotFoundError
+            No signal has that name (the message lists them).
+        """
         for s in self.signals:
             if s.name == name:
                 return s
@@ -915,6 +1170,21 @@ class SessionReader:
         )
 
     def signal_for_role(self, role: str) -> SignalSpec:
+        """The first vehicle signal with ``role`` (``speed``).
+
+        Parameters
+        ----------
+        role : str
+
+        Returns
+        -------
+        SignalSpec
+
+        Raises
+        ------
+        ChannelNotFoundError
+            No signal has the role.
+        """
         found = [s for s in self.signals if s.role == role]
         if not found:
             raise ChannelNotFoundError(f"{self.path.name} has no signal with role {role!r}")
@@ -923,7 +1193,27 @@ class SessionReader:
     def signal(
         self, name: str, start_s: float | None = None, end_s: float | None = None
     ) -> tuple[np.ndarray, np.ndarray]:
-        """(time_s, value) of a vehicle signal in [start_s, end_s)."""
+        """(time_s, value) of a vehicle signal in [start_s, end_s).
+
+        Parameters
+        ----------
+        name : str
+            The signal.
+        start_s, end_s : float or None
+            Session time limits [s].
+
+        Returns
+        -------
+        time_s : ndarray
+            The signal's own time stamps [s].
+        value : ndarray
+            Its values, in the signal's unit.
+
+        Raises
+        ------
+        ChannelNotFoundError
+            No such signal.
+        """
         self.signal_spec(name)
         g = self._file["signals"][name]
         n = min(g["time_s"].shape[0], g["value"].shape[0])
@@ -962,10 +1252,12 @@ class SessionReader:
     # ------------------------------------------------------------------ events etc.
     @property
     def events(self) -> list[Event]:
+        """The labelled instants, in the order recorded."""
         return [Event(float(r["time_s"]), _decode(r["label"])) for r in self._file["events"][:]]
 
     @property
     def gaps(self) -> list[Gap]:
+        """The stretches without DAQ samples the recorder noted."""
         return [
             Gap(float(r["start_s"]), float(r["end_s"]), int(r["samples_lost"]), _decode(r["cause"]))
             for r in self._file["gaps"][:]
@@ -973,22 +1265,43 @@ class SessionReader:
 
     @property
     def counters(self) -> dict[str, int]:
+        """The recording counters (frames received, lost, CRC errors...)."""
         ds = self._file["counters"]
         names = json.loads(ds.attrs["names"])
         return {k: int(v) for k, v in zip(names, ds[:], strict=True)}
 
     @property
     def has_can_frames(self) -> bool:
+        """True when the session keeps its raw CAN frames."""
         return "can_frames" in self._file
 
     def can_frames(self, start: int = 0, stop: int | None = None) -> np.ndarray:
-        """Raw CAN frames [start, stop) as a structured array of :data:`CAN_FRAME_DTYPE`."""
+        """Raw CAN frames [start, stop) as a structured array of :data:`CAN_FRAME_DTYPE`.
+
+        Parameters
+        ----------
+        start, stop : int or None
+            Frame indices; ``stop`` None: to the end.
+
+        Returns
+        -------
+        ndarray
+            Empty when the session keeps no frames.
+        """
         if not self.has_can_frames:
             return np.zeros(0, dtype=CAN_FRAME_DTYPE)
         return self._file["can_frames"][start:stop]
 
     def info(self) -> dict[str, Any]:
-        """Everything ``fielddiag info`` shows, JSON-serialisable."""
+        """Everything ``fielddiag info`` shows, JSON-serialisable.
+
+        Returns
+        -------
+        dict
+            Path, schema version, metadata, time base, rate [Hz], samples, start and
+            duration [s], channels, signals (with their rate [Hz]), events, gaps, samples
+            lost, CAN frames and counters.
+        """
         gaps = self.gaps
         signals = []
         for s in self.signals:
@@ -1018,6 +1331,7 @@ class SessionReader:
         }
 
     def close(self) -> None:
+        """Close the file (also done on leaving a ``with`` block)."""
         self._file.close()
 
     def __enter__(self) -> SessionReader:
@@ -1028,7 +1342,21 @@ class SessionReader:
 
 
 def open_session(path: str | os.PathLike) -> SessionReader:
-    """Open a session for reading (same as :class:`SessionReader`)."""
+    """Open a session for reading (same as :class:`SessionReader`).
+
+    Parameters
+    ----------
+    path : str or PathLike
+
+    Returns
+    -------
+    SessionReader
+
+    Raises
+    ------
+    SessionError
+        Missing, unreadable, truncated or not a fielddiag session.
+    """
     return SessionReader(path)
 
 
@@ -1047,7 +1375,43 @@ def write_session(
 ) -> Path:
     """Write a whole session at once, atomically (for imports, the simulator, exports).
 
-    ``time_s`` None means a uniform time base starting at 0.
+    Parameters
+    ----------
+    path : str or PathLike
+        The file to create.
+    metadata : SessionMetadata
+        Root attributes.
+    channels : sequence of ChannelSpec
+        The DAQ channels, in the column order of ``samples``.
+    samples : ndarray
+        (n, channels) raw samples.
+    sample_rate_hz : float
+        Nominal sample rate [Hz].
+    time_s : ndarray or None
+        Time stamp of each sample [s]; None: a uniform time base starting at 0.
+    signals : mapping of SignalSpec to (time_s, value) or None
+        Vehicle signals with their own time stamps.
+    events : iterable of Event
+    gaps : iterable of Gap
+    overwrite : bool
+        Replace an existing file.
+
+    Returns
+    -------
+    Path
+        The session written.
+
+    Raises
+    ------
+    SessionError
+        The file exists (without ``overwrite``), its folder does not, or a name or role
+        is invalid.
+
+    Examples
+    --------
+    >>> write_session("drive.h5", SessionMetadata(vehicle="demo"),              # doctest: +SKIP
+    ...               [ChannelSpec("wheel_z", role="wheel"), ChannelSpec("body_z", role="body")],
+    ...               samples, sample_rate_hz=500.0)
     """
     signals = signals or {}
     with SessionWriter(

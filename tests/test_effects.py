@@ -196,8 +196,8 @@ def test_a_new_effect_is_simulated_fitted_and_diagnosed(cubic_damper) -> None:
     c3_per_kg = res.per_unit_mass[f"{CubicDamper.name}.cubic_damping_ns3_per_m3"]
     assert c3_per_kg == pytest.approx(c3 / car.body_mass_kg, rel=1e-3)
     # diagnosed: named first among every diagnosable effect (the new one included)
-    drive = Drive("drive", "sim", d.sample_rate_hz, 0.0, d.wheel_accel_mps2,
-                  d.body_accel_mps2, 0.0)
+    drive = Drive(d.wheel_accel_mps2, d.body_accel_mps2, d.sample_rate_hz, label="drive",
+                  name="sim")
     out = diagnose_drives([drive]).to_dict()
     assert CubicDamper.name in [c["effects"][0] for c in out["candidates"]]
     assert out["findings"][0]["effect"] == CubicDamper.name

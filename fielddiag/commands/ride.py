@@ -50,6 +50,7 @@ def format_ride(a) -> str:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
+    from fielddiag.drive import read_accel_channel
     from fielddiag.outputs import check_folder, check_target, write_plots, write_text
     from fielddiag.session import SessionReader
 
@@ -57,9 +58,8 @@ def run(args: argparse.Namespace) -> int:
         check_target(args.json, overwrite=True, flag="--json")
     if args.plots:
         check_folder(args.plots)
+    t, a, body = read_accel_channel(args.session, "body", purpose="the ride analysis")
     with SessionReader(args.session) as s:
-        body = s.channel_for_role("body")
-        t, a = s.read_with_time(body.name)
         speed_t = speed_v = None
         if any(sig.role == "speed" for sig in s.signals):
             speed_t, speed_v = s.signal(s.signal_for_role("speed").name)

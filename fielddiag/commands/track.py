@@ -19,7 +19,6 @@ import json
 import sys
 import time
 
-from fielddiag.errors import FieldDiagError
 from fielddiag.validate import arg_existing_file, arg_number, finite_session
 
 
@@ -59,25 +58,18 @@ def run(args: argparse.Namespace) -> int:
         check_target(args.json, overwrite=True, flag="--json")
     finite_session(args.session)
     from fielddiag.commands.fit import build_model
-    from fielddiag.identify.greybox import accel_unit_factor
+    from fielddiag.drive import read_corner_drive
     from fielddiag.identify.online import (
         OnlineEstimator,
         convergence_time,
         format_status,
         replay,
     )
-    from fielddiag.session import SessionReader
 
     model = build_model(args.terms)
-    with SessionReader(args.session) as s:
-        wch, bch = s.channel_for_role("wheel"), s.channel_for_role("body")
-        t, aw = s.read_with_time(wch.name)
-        aw = aw * accel_unit_factor(wch.unit, wch.name)
-        ab = s.read(bch.name) * accel_unit_factor(bch.unit, bch.name)
-        fs = s.sample_rate_hz
-        dm = s.metadata.added_mass_kg
-    if t.size < 2:
-        raise FieldDiagError(f"{args.session} holds no samples to replay")
+    drive = read_corner_drive(args.session, purpose="the on-line estimate")
+    t, aw, ab = drive.time_s, drive.wheel_accel_mps2, drive.body_accel_mps2
+    fs, dm = drive.sample_rate_hz, drive.added_mass_kg
     est = OnlineEstimator(fs, model, cutoff_hz=args.cutoff, target_rel_std=args.target / 100,
                           body_mass_kg=args.body_mass, added_mass_kg=dm).warm_up()
     out = sys.stderr if args.json == "-" else sys.stdout

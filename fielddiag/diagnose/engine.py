@@ -65,12 +65,12 @@ from fielddiag.diagnose.selection import (
     paired_block_t,
     select_model,
 )
+from fielddiag.drive import CornerDrive, read_corner_drive
 from fielddiag.effects import EFFECTS, ForceModel, diagnosis_effects, get_effect, split_shape
 from fielddiag.effects.base import TRAVEL_BOUND_M
-from fielddiag.errors import FieldDiagError, InsufficientDataError
+from fielddiag.errors import FieldDiagError
 from fielddiag.identify.greybox import (
     GreyBoxData,
-    accel_unit_factor,
     default_band_hz,
     fit_greybox,
     validation_runs,
@@ -85,48 +85,36 @@ GRAVITY = dsp.GRAVITY_MPS2
 
 
 # ----------------------------------------------------------------------------- inputs
-@dataclass
-class Drive:
-    """One recorded drive: raw wheel and body accelerometer readings (m/s2, g included)."""
-
-    label: str  # "before" / "after" / "drive"
-    name: str
-    sample_rate_hz: float
-    start_s: float
-    wheel_accel_mps2: np.ndarray
-    body_accel_mps2: np.ndarray
-    added_mass_kg: float
-
-    @property
-    def time_s(self) -> np.ndarray:
-        return self.start_s + np.arange(self.wheel_accel_mps2.size) / self.sample_rate_hz
+#: One recorded drive as the diagnosis takes it: the wheel and body readings in m/s^2
+#: (gravity included) with the label, rate, start and added mass.
+Drive = CornerDrive
 
 
 def read_drive(path: str | os.PathLike, label: str, added_mass_kg: float | None = None) -> Drive:
-    """Read the wheel and body channels of a session (by role), refusing gaps."""
-    from fielddiag.session import SessionReader
+    """Read the wheel and body channels of a session (by role), refusing gaps.
 
-    with SessionReader(path) as s:
-        wch, bch = s.channel_for_role("wheel"), s.channel_for_role("body")
-        t = s.time_s()
-        if t.size < 2:
-            raise InsufficientDataError(f"{s.path.name} holds no samples")
-        if s.time_base != "uniform":
-            dt = np.diff(t)
-            if np.max(np.abs(dt * s.sample_rate_hz - 1.0)) > 0.5:
-                raise InsufficientDataError(
-                    f"{s.path.name} has gaps in its time base; diagnose needs a continuous "
-                    "recording (export the longest gap-free stretch)"
-                )
-        return Drive(
-            label=label,
-            name=s.path.name,
-            sample_rate_hz=s.sample_rate_hz,
-            start_s=float(t[0]),
-            wheel_accel_mps2=s.read(wch.name) * accel_unit_factor(wch.unit, wch.name),
-            body_accel_mps2=s.read(bch.name) * accel_unit_factor(bch.unit, bch.name),
-            added_mass_kg=s.metadata.added_mass_kg if added_mass_kg is None else added_mass_kg,
-        )
+    :func:`fielddiag.drive.read_corner_drive` with ``require_continuous=True``.
+
+    Parameters
+    ----------
+    path : str or PathLike
+        The session file.
+    label : str
+        ``before``, ``after`` or ``drive``.
+    added_mass_kg : float or None
+        Overrides the session's ``added_mass_kg`` attribute [kg].
+
+    Returns
+    -------
+    Drive
+
+    Raises
+    ------
+    ChannelNotFoundError, InsufficientDataError, SessionError
+        As :func:`~fielddiag.drive.read_corner_drive`.
+    """
+    return read_corner_drive(path, label=label, added_mass_kg=added_mass_kg,
+                             require_continuous=True, purpose="diagnose")
 
 
 @dataclass

@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from fielddiag.drive import accel_unit_factor
 from fielddiag.errors import FieldDiagError, InsufficientDataError
 from fielddiag.units import ACCEL_UNITS, GRAVITY_MPS2
 
@@ -187,51 +188,36 @@ class GreyBoxData:
     def from_session(cls, path: str | os.PathLike, *, start_s: float | None = None,
                      end_s: float | None = None, band_hz: tuple[float, float] | None = None,
                      added_mass_kg: float | None = None) -> GreyBoxData:
-        """Fit data from a session file (channels with roles ``wheel`` and ``body``).
+        """Fit data from a session file (read by :func:`fielddiag.drive.read_corner_drive`).
 
         Parameters
         ----------
+        path : str or PathLike
+            The session (channels with roles ``wheel`` and ``body``).
+        start_s, end_s : float or None
+            The stretch to fit (session time [s]); it must be free of gaps.
+        band_hz : (float, float) or None
+            Valid band [Hz]; None chooses it with :func:`default_band_hz`.
         added_mass_kg : float or None
-            Overrides the session's ``added_mass_kg`` attribute.
+            Overrides the session's ``added_mass_kg`` attribute [kg].
+
+        Returns
+        -------
+        GreyBoxData
+
+        Raises
+        ------
+        ChannelNotFoundError, InsufficientDataError, SessionError
+            As :func:`~fielddiag.drive.read_corner_drive` (``require_continuous``).
         """
-        from fielddiag.session import SessionReader
+        from fielddiag.drive import read_corner_drive
 
-        with SessionReader(path) as s:
-            if s.time_base != "uniform":
-                t = s.time_s(start_s, end_s)
-                if t.size > 2:
-                    dt = np.diff(t)
-                    if np.max(np.abs(dt * s.sample_rate_hz - 1.0)) > 0.5:
-                        raise FieldDiagError(
-                            f"{s.path.name} has gaps or an irregular time base between "
-                            f"{t[0]:.2f} and {t[-1]:.2f} s; fit a segment without gaps "
-                            "(--start/--end)")
-            wch, bch = s.channel_for_role("wheel"), s.channel_for_role("body")
-            wheel = s.read(wch.name, start_s, end_s) * accel_unit_factor(wch.unit, wch.name)
-            body = s.read(bch.name, start_s, end_s) * accel_unit_factor(bch.unit, bch.name)
-            i0, _ = s.index_range(start_s, end_s)
-            t0 = float(s.time_at(i0, i0 + 1)[0]) if wheel.size else 0.0
-            dm = s.metadata.added_mass_kg if added_mass_kg is None else added_mass_kg
-            fs = s.sample_rate_hz
-            name = s.path.name
-        return cls.from_accelerations(wheel, body, fs, band_hz=band_hz, added_mass_kg=dm,
-                                      name=name, start_s=t0)
-
-
-def accel_unit_factor(unit: str, channel: str = "") -> float:
-    """Factor from a channel's acceleration unit to m/s^2 (``g`` -> standard gravity).
-
-    Raises
-    ------
-    FieldDiagError
-        The unit is not an acceleration.
-    """
-    key = unit.strip()
-    if key in ACCEL_UNITS:
-        return ACCEL_UNITS[key]
-    raise FieldDiagError(
-        f"channel {channel!r} is in {unit!r}, not an acceleration; the fit needs "
-        f"accelerometers in one of {', '.join(ACCEL_UNITS)} (fix the unit on import)")
+        d = read_corner_drive(path, start_s=start_s, end_s=end_s, added_mass_kg=added_mass_kg,
+                              require_continuous=True, purpose="the fit",
+                              gap_advice="fit a stretch without gaps with --start/--end")
+        return cls.from_accelerations(d.wheel_accel_mps2, d.body_accel_mps2, d.sample_rate_hz,
+                                      band_hz=band_hz, added_mass_kg=d.added_mass_kg,
+                                      name=d.name, start_s=d.start_s)
 
 
 def default_band_hz(sample_rate_hz: float, n_samples: int | None = None) -> tuple[float, float]:

@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 from numba import njit
 
-from fielddiag.errors import ChannelNotFoundError, FieldDiagError
+from fielddiag.errors import FieldDiagError
 from fielddiag.identify.terms import ForceModel, linear_model, model_force
 from fielddiag.units import GRAVITY_MPS2
 
@@ -424,14 +424,12 @@ class OnlineEstimator:
         callable
             ``listener(block)`` feeding ``block.time_s`` and the two columns to :meth:`update`.
         """
-        from fielddiag.identify.greybox import accel_unit_factor
+        from fielddiag.drive import accel_unit_factor, find_channel
 
-        roles = [getattr(c, "role", "") for c in channels]
-        if roles.count("wheel") != 1 or roles.count("body") != 1:
-            raise ChannelNotFoundError(
-                "the on-line estimate needs exactly one channel with role 'wheel' and one with "
-                f"role 'body'; the channels have roles {roles}")
-        iw, ib = roles.index("wheel"), roles.index("body")
+        channels = list(channels)
+        iw, ib = (channels.index(find_channel(channels, kind, source="the recorder",
+                                              purpose="the on-line estimate"))
+                  for kind in ("wheel", "body"))
         fw = accel_unit_factor(getattr(channels[iw], "unit", "m/s2"), channels[iw].name)
         fb = accel_unit_factor(getattr(channels[ib], "unit", "m/s2"), channels[ib].name)
 

@@ -23,19 +23,18 @@ import math
 import os
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from fielddiag.blas import single_threaded_blas
+from fielddiag.drive import CornerDrive, read_corner_drive
 from fielddiag.dsp import (
     BlockCrossSpectra,
     CrossSpectra,
     block_cross_spectra,
-    contiguous_pieces,
     spectrum_on_grid,
 )
-from fielddiag.errors import ChannelNotFoundError, InsufficientDataError, SessionError
+from fielddiag.errors import InsufficientDataError
 from fielddiag.identify.boundary import (
     THETA_NAMES,
     RouteEstimate,
@@ -82,31 +81,9 @@ METHOD = (
 )
 
 
-@dataclass
-class Recording:
-    """Wheel and body accelerometer readings of one drive (g, bias and drift allowed).
-
-    ``pieces`` lists contiguous index ranges when the recording has gaps (None: one piece).
-    """
-
-    wheel_mps2: np.ndarray
-    body_mps2: np.ndarray
-    sample_rate_hz: float
-    added_mass_kg: float = 0.0
-    label: str = ""
-    path: str = ""
-    pieces: list[tuple[int, int]] | None = None
-
-    @property
-    def n(self) -> int:
-        return int(min(np.shape(self.wheel_mps2)[0], np.shape(self.body_mps2)[0]))
-
-    @property
-    def duration_s(self) -> float:
-        return self.n / self.sample_rate_hz
-
-    def piece_list(self) -> list[tuple[int, int]]:
-        return [(0, self.n)] if self.pieces is None else list(self.pieces)
+#: One drive as identification takes it: the wheel and body readings in m/s^2 (gravity,
+#: bias and drift allowed), built from arrays or read by :func:`read_recording`.
+Recording = CornerDrive
 
 
 @dataclass
@@ -196,7 +173,7 @@ def _check_recording(rec: Recording, cfg: IdentifyConfig) -> None:
         raise InsufficientDataError(
             f"{name}{where} lasts only {rec.duration_s:.1f} s; at least {cfg.min_duration_s:g}"
             f" s are needed and 120-300 s give a mass within 2 %: {WHAT_TO_RECORD}")
-    for ch, arr in (("wheel", rec.wheel_mps2), ("body", rec.body_mps2)):
+    for ch, arr in (("wheel", rec.wheel_accel_mps2), ("body", rec.body_accel_mps2)):
         a = np.asarray(arr)
         if not np.all(np.isfinite(a[: rec.n])):
             raise InsufficientDataError(
@@ -386,7 +363,7 @@ def identify_recordings(
         nb = _auto_blocks(r.duration_s, seg, cfg)
         try:
             blocks.append(block_cross_spectra(
-                np.asarray(r.wheel_mps2)[: r.n], np.asarray(r.body_mps2)[: r.n],
+                np.asarray(r.wheel_accel_mps2)[: r.n], np.asarray(r.body_accel_mps2)[: r.n],
                 r.sample_rate_hz, segment_s=seg, n_blocks=nb, pieces=r.piece_list()))
         except ValueError as exc:
             raise InsufficientDataError(
@@ -538,7 +515,7 @@ def identify_recordings(
         for s, (r, blk, (nx, ny)) in enumerate(zip(recs, blocks, noise_total, strict=True)):
             for i0, i1 in r.piece_list():
                 p = prepare_time_piece(
-                    np.asarray(r.wheel_mps2)[i0:i1], np.asarray(r.body_mps2)[i0:i1],
+                    np.asarray(r.wheel_accel_mps2)[i0:i1], np.asarray(r.body_accel_mps2)[i0:i1],
                     r.sample_rate_hz, band, session=s, noise_x=nx, noise_y=ny,
                     added_mass_kg=masses[s], block_edges_s=blk.block_edges_s,
                     start_s=i0 / r.sample_rate_hz, output_rate_hz=fs_out)
@@ -601,8 +578,8 @@ def identify_recordings(
         if not cfg.display:
             break
         tb = travel_band(sp, nz.wheel_psd_per_hz, nz.body_psd_per_hz, band)
-        motion = suspension_motion(np.asarray(r.wheel_mps2)[: r.n],
-                                   np.asarray(r.body_mps2)[: r.n], r.sample_rate_hz, tb)
+        motion = suspension_motion(np.asarray(r.wheel_accel_mps2)[: r.n],
+                                   np.asarray(r.body_accel_mps2)[: r.n], r.sample_rate_hz, tb)
         ncov = motion_noise_covariance(tb, nz.wheel_psd_per_hz, nz.body_psd_per_hz)
         mass = theta[0] + dmass
         k3pm = theta[3] / mass
@@ -650,7 +627,21 @@ def identify_recordings(
 
 
 def read_recording(path: str | os.PathLike, label: str = "") -> Recording:
-    """Read the wheel and body channels (by role) of a session into a :class:`Recording`.
+    """Read the wheel and body channels (by role) of a session, in m/s^2.
+
+    :func:`fielddiag.drive.read_corner_drive` for identification: gaps are allowed (the
+    analysis works on the contiguous pieces).
+
+    Parameters
+    ----------
+    path : str or PathLike
+        The session file.
+    label : str
+        ``before`` or ``after``, for the messages and the result.
+
+    Returns
+    -------
+    Recording
 
     Raises
     ------
@@ -660,47 +651,7 @@ def read_recording(path: str | os.PathLike, label: str = "") -> Recording:
     SessionError
         The time stamps are too irregular to analyse as a uniformly sampled record.
     """
-    from fielddiag.session import SessionReader
-
-    path = Path(path)
-    with SessionReader(path) as s:
-        have = ", ".join(f"{c.name} ({c.role})" for c in s.channels) or "none"
-        found = {}
-        for role, where in (("wheel", "on the wheel carrier or hub, below the spring"),
-                            ("body", "on the body at the strut top, above the spring")):
-            chans = s.channels_for_role(role)
-            if len(chans) != 1:
-                what = "no" if not chans else "several"
-                raise ChannelNotFoundError(
-                    f"{path.name} has {what} {role} channel (role '{role}'; channels: {have}). "
-                    f"identify needs exactly one wheel-side and one body-side vertical "
-                    f"accelerometer in each drive: record with an accelerometer {where}, "
-                    f"vertical axis, channel role '{role}'")
-            found[role] = chans[0].name
-        n = s.n_samples
-        fs = s.sample_rate_hz
-        pieces = [(0, n)]
-        if s.time_base == "timestamps":
-            t = s.time_s()
-            dt = np.diff(t)
-            if dt.size:
-                med = float(np.median(dt))
-                inside = dt[dt < 1.5 * med]
-                if inside.size and float(np.std(inside)) > 0.01 * med:
-                    raise SessionError(
-                        f"{path.name} has irregular time stamps (jitter "
-                        f"{100 * np.std(inside) / med:.0f} % of the sample period); identify "
-                        "needs a uniformly sampled DAQ recording")
-                fs = 1.0 / med
-            pieces = contiguous_pieces(t, n, fs)
-        gap_idx = sorted({s.index_range(g.start_s, None)[0] for g in s.gaps})
-        if gap_idx and s.time_base == "uniform":
-            edges = [0] + [i for i in gap_idx if 0 < i < n] + [n]
-            pieces = [(a, b) for a, b in zip(edges[:-1], edges[1:], strict=True) if b > a]
-        wheel = s.read(found["wheel"])
-        body = s.read(found["body"])
-        return Recording(wheel, body, fs, float(s.metadata.added_mass_kg), label, str(path),
-                         None if len(pieces) == 1 else pieces)
+    return read_corner_drive(path, label=label, purpose="identify")
 
 
 def identify_sessions(
