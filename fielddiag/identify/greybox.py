@@ -411,7 +411,22 @@ def _rel(std: float, value: float) -> float:
 
 def validate_greybox(result: GreyBoxResult, data: Sequence[GreyBoxData], *,
                      substeps: int = 1) -> list[SessionFit]:
-    """NRMSE of a fitted model on data not used in the fit (see :func:`validation_runs`)."""
+    """NRMSE of a fitted model on data not used in the fit (see :func:`validation_runs`).
+
+    Parameters
+    ----------
+    result : GreyBoxResult
+        A fit.
+    data : sequence of GreyBoxData
+        Held-out sessions; only their initial body offset and velocity are fitted.
+    substeps : int
+        RK4 steps per sample interval.
+
+    Returns
+    -------
+    list of SessionFit
+        One per session, ``role="validation"``, with NRMSE and residual RMS [m/s^2].
+    """
     return [run[0] for run in validation_runs(result, data, substeps=substeps)]
 
 

@@ -227,6 +227,12 @@ def advice_line(parameters: Sequence[Mapping[str, Any]], *, enough: bool,
     explained, min_explained : float or None, float
         Fraction of the (filtered) body acceleration the model explains, and the least
         fraction at which its parameters mean anything.
+
+    Returns
+    -------
+    str
+        Wait for data, drive on a rougher road, which parameters are not yet observable
+        and how to excite them, the worst parameter against its goal, or "enough data".
     """
     if not started:
         return "waiting for data: start driving"
@@ -366,7 +372,15 @@ class OnlineEstimator:
             self.processing_time_s = 0.0
 
     def warm_up(self) -> OnlineEstimator:
-        """Compile the numba kernel now (a few seconds) instead of on the first block."""
+        """Compile the numba kernel now (a few seconds) instead of on the first block.
+
+        The estimator's state is restored afterwards.
+
+        Returns
+        -------
+        OnlineEstimator
+            ``self``, for chaining.
+        """
         saved = (self._theta.copy(), self._pm.copy(), self._st.copy(), self._svf.copy(),
                  self._sum_e.copy(), self._sum_phi.copy(), self._ring_e.copy(),
                  self._ring_phi.copy())
@@ -390,6 +404,19 @@ class OnlineEstimator:
 
         Blocks must arrive in time order; a jump in time (a gap) restarts the filters
         without forgetting the parameter estimates.
+
+        Parameters
+        ----------
+        time_s : ndarray
+            Session times of the samples [s].
+        wheel_accel_mps2, body_accel_mps2 : ndarray
+            Wheel and body accelerometer readings [m/s^2] (gravity included); samples that are
+            not finite are dropped.
+
+        Raises
+        ------
+        FieldDiagError
+            The three arrays differ in length.
         """
         t = np.ascontiguousarray(time_s, dtype=float).reshape(-1)
         aw = np.ascontiguousarray(wheel_accel_mps2, dtype=float).reshape(-1)
@@ -461,7 +488,13 @@ class OnlineEstimator:
         return np.maximum(kappa, 1.0)
 
     def estimates(self) -> dict[str, float]:
-        """Current estimates per unit mass by parameter key."""
+        """Current estimates per unit mass by parameter key.
+
+        Returns
+        -------
+        dict of str to float
+            ``K2/M2`` [N/m/kg], ``C2/M2`` [N s/m/kg]... by model key.
+        """
         with self._lock:
             return dict(zip(self.model.param_keys, self._theta[:-1].tolist(), strict=True))
 
@@ -563,6 +596,15 @@ def format_estimate(st: Mapping[str, Any]) -> str:
 
     E.g. ``on-line (12.0 s): stiffness 63.2 N/m/kg ±1.2 % 8.1 bit | damping 4.74 N s/m/kg
     ±5.3 % 3.2 bit``.
+
+    Parameters
+    ----------
+    st : mapping
+        A status dict (``duration_s`` and ``parameters``).
+
+    Returns
+    -------
+    str
     """
     parts = []
     for p in st["parameters"]:
@@ -577,7 +619,17 @@ def format_estimate(st: Mapping[str, Any]) -> str:
 
 
 def format_status(st: Mapping[str, Any]) -> str:
-    """One console line of :meth:`OnlineEstimator.status`: the estimate and the advice."""
+    """One console line of :meth:`OnlineEstimator.status`: the estimate and the advice.
+
+    Parameters
+    ----------
+    st : mapping
+        A status dict.
+
+    Returns
+    -------
+    str
+    """
     return format_estimate(st) + " | advice: " + st["advice"]
 
 

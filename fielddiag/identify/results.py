@@ -126,10 +126,28 @@ class ComplexSeries(_Serialisable):
 
     @classmethod
     def of(cls, z: np.ndarray) -> ComplexSeries:
+        """From a complex array.
+
+        Parameters
+        ----------
+        z : array_like
+            Complex values.
+
+        Returns
+        -------
+        ComplexSeries
+        """
         z = np.asarray(z, dtype=complex)
         return cls([float(v) for v in z.real], [float(v) for v in z.imag])
 
     def array(self) -> np.ndarray:
+        """The complex array back.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``re + 1j * im``.
+        """
         return np.asarray(self.re, float) + 1j * np.asarray(self.im, float)
 
 
@@ -280,7 +298,15 @@ class IdentificationResult(_Serialisable):
     software_version: str
 
     def summary(self) -> str:
-        """A readable multi-line summary."""
+        """A readable multi-line summary.
+
+        Returns
+        -------
+        str
+            The sessions, the band, the coherence, M2 [kg], K2 [N/m], C2 [N s/m], K3 [N/m],
+            the body natural frequency [Hz] and damping ratio with standard deviations, and the
+            checks and warnings.
+        """
         def line(label: str, e: Estimate, unit: str, spec: str = ".4g") -> str:
             rel = f"  ({100 * e.relative_std:.1f} %)" if e.value else ""
             return f"  {label:<26} {e.value:{spec}} +- {e.std:{spec}} {unit}{rel}"

@@ -107,6 +107,13 @@ def uniform_resample(time_s: np.ndarray, values: np.ndarray) -> tuple[np.ndarray
                                                                        float, float]:
     """Linear interpolation onto a grid at the median sample rate.
 
+    Parameters
+    ----------
+    time_s : ndarray
+        Sample times [s], increasing.
+    values : ndarray
+        Samples at those times (any unit).
+
     Returns
     -------
     (time_s, values, sample_rate_hz, jitter)
@@ -124,7 +131,26 @@ def uniform_resample(time_s: np.ndarray, values: np.ndarray) -> tuple[np.ndarray
 def displacement_band(freq_hz: np.ndarray, psd: np.ndarray, noise_psd_per_hz: float, *,
                       min_freq_hz: float, max_freq_hz: float, snr_min: float = 10.0
                       ) -> tuple[float, float]:
-    """From the first to the last line (smoothed over 5) at least ``snr_min`` above noise."""
+    """From the first to the last line (smoothed over 5) at least ``snr_min`` above noise.
+
+    Parameters
+    ----------
+    freq_hz : ndarray
+        Frequencies [Hz].
+    psd : ndarray
+        PSD of the signal (e.g. [(m/s^2)^2/Hz]).
+    noise_psd_per_hz : float
+        Noise floor in the same unit.
+    min_freq_hz, max_freq_hz : float
+        Lines considered [Hz].
+    snr_min : float
+        Power ratio over the noise a line needs.
+
+    Returns
+    -------
+    (float, float)
+        ``(low_hz, high_hz)``; NaN, NaN with fewer than two good lines.
+    """
     ps = np.convolve(psd, np.ones(5) / 5, mode="same")
     ok = (freq_hz >= min_freq_hz) & (freq_hz <= max_freq_hz) & (ps >= snr_min * noise_psd_per_hz)
     if ok.sum() < 2:
