@@ -219,6 +219,20 @@ class Effect:
     **kw : float
         Parameter values and settings by name. Without any parameter value the instance is
         a term of a model to fit.
+
+    Raises
+    ------
+    FieldDiagError
+        Too many values, an unknown name, a setting that is not a number >= 0, a missing
+        parameter, or a value :meth:`ParamSpec.check` refuses.
+
+    Examples
+    --------
+    ::
+
+        CoulombFriction()                          # a term of a model to fit
+        CoulombFriction(friction_force_n=80.0)     # an effect to simulate (v_s default)
+        LinearSpring() + LinearDamper() + CoulombFriction()   # a ForceModel
     """
 
     name: ClassVar[str]

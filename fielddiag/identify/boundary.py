@@ -129,7 +129,23 @@ DERIVED: dict[str, Callable[[Sequence[float]], float]] = {
 
 @dataclass
 class SessionLines:
-    """The in-band lines of one session, ready for the frequency-domain fit."""
+    """The in-band lines of one session, ready for the frequency-domain fit.
+
+    Parameters
+    ----------
+    freq_hz : ndarray
+        Frequencies of the lines [Hz].
+    gxx, gyy : ndarray
+        Averaged auto-spectra of the wheel and body accelerations [(m/s^2)^2/Hz].
+    gxy : ndarray
+        Averaged cross-spectrum wheel -> body [(m/s^2)^2/Hz], complex.
+    n_averages : int
+        Welch segments averaged.
+    noise_x, noise_y : float
+        White-noise densities of the wheel and body accelerometers [(m/s^2)^2/Hz].
+    added_mass_kg : float
+        Mass added on the body in this session [kg].
+    """
 
     freq_hz: np.ndarray
     gxx: np.ndarray
@@ -174,7 +190,25 @@ class SessionLines:
 
 @dataclass
 class FitOutcome:
-    """One least-squares fit: parameters, cost, and the least-squares covariance."""
+    """One least-squares fit: parameters, cost, and the least-squares covariance.
+
+    Parameters
+    ----------
+    theta : ndarray
+        ``[M2 kg, K2 N/m, C2 N s/m, K3 N/m]`` (:data:`THETA_NAMES`); K3 = 0 when not fitted.
+    cost : float
+        Sum of squared (prewhitened, dimensionless) residuals at the solution.
+    n_residuals : int
+        Number of residuals.
+    include_k3 : bool
+        K3 was fitted.
+    covariance : ndarray
+        ``(4, 4)`` least-squares covariance of ``theta`` (SI units squared).
+    converged : bool
+        The optimiser reported success.
+    message : str
+        The optimiser's message.
+    """
 
     theta: np.ndarray
     cost: float
@@ -320,6 +354,26 @@ class RouteEstimate:
     uncertain and sometimes low by chance. ``derived`` holds (value, jackknife std) of the
     body natural frequency and damping ratio. ``replicates`` are the jackknife estimates,
     one row per left-out block.
+
+    Parameters
+    ----------
+    name : str
+        ``"frequency"`` or ``"time"``.
+    theta, std, lsq_std : ndarray
+        ``[M2 kg, K2 N/m, C2 N s/m, K3 N/m]`` (:data:`THETA_NAMES`),
+        their standard deviations and the least-squares ones (same units).
+    include_k3 : bool
+        K3 was fitted (else held at 0).
+    derived : dict of str to (float, float)
+        ``body_natural_frequency_hz`` [Hz] and ``damping_ratio`` with their std.
+    replicates : ndarray
+        ``(n_blocks, 4)`` jackknife estimates.
+    cost : float
+        Final cost (sum of squared prewhitened residuals, dimensionless).
+    n_residuals : int
+        Number of residuals.
+    notes : list of str
+        Remarks (a fit that did not converge).
     """
 
     name: str
@@ -425,6 +479,30 @@ class TimeRoutePiece:
     (band window applied, scaled for an inverse FFT of length ``n_fft_out``); the
     residual is evaluated on the output samples ``keep`` (record ends trimmed), whose
     jackknife block is ``block_of``.
+
+    Parameters
+    ----------
+    session : int
+        Index of the session (0 before, 1 after).
+    freq_hz : ndarray
+        Frequencies of the FFT lines kept [Hz].
+    wheel_spec, body_spec : ndarray
+        Windowed FFT lines of the wheel and body accelerations (m/s^2 per line, complex).
+    n_fft_out : int
+        Length of the inverse FFT (sets the output rate).
+    keep : slice
+        Output samples used in the residual.
+    block_of : ndarray
+        Jackknife block of each kept sample.
+    noise_x, noise_y : float
+        White-noise densities of the wheel and body accelerometers [(m/s^2)^2/Hz].
+    added_mass_kg : float
+        Mass added on the body in this session [kg].
+    norm : float
+        RMS per output sample of prewhitened band-limited unit white noise (the residual
+        is divided by it).
+    output_rate_hz : float
+        Sample rate of the residual [Hz].
     """
 
     session: int
@@ -643,6 +721,17 @@ class PairConsistency:
     and nothing else changed, gives the same M2 both ways (within their std); drives of
     different cars or corners, swapped drives, or a suspension whose damping is not linear
     (friction: its equivalent damping depends on the amplitude) do not.
+
+    Parameters
+    ----------
+    ratios_before, ratios_after : (float, float)
+        ``(K2/M2 [1/s^2], C2/M2 [1/s])`` of each drive alone.
+    mass_from_stiffness_kg, mass_from_stiffness_std_kg : float
+        M2 implied by the stiffness ratios and its jackknife std [kg].
+    mass_from_damping_kg, mass_from_damping_std_kg : float
+        M2 implied by the damping ratios and its std [kg].
+    stiffness_drop_z : float
+        ``(k_before - k_after) / std``: positive when the mass was added.
     """
 
     ratios_before: tuple[float, float]
@@ -655,7 +744,7 @@ class PairConsistency:
 
     @property
     def disagreement_z(self) -> float:
-        """|M2 from stiffness - M2 from damping| in units of their combined std."""
+        """|M2 from stiffness - M2 from damping| in units of their combined std (dimensionless)."""
         s = math.hypot(self.mass_from_stiffness_std_kg, self.mass_from_damping_std_kg)
         d = abs(self.mass_from_stiffness_kg - self.mass_from_damping_kg)
         return d / s if s > 0 else float("inf")

@@ -32,7 +32,29 @@ __all__ = ["LMOutcome", "hac_covariance", "levenberg_marquardt", "scipy_trf", "s
 
 @dataclass
 class LMOutcome:
-    """What :func:`levenberg_marquardt` returns."""
+    """What :func:`levenberg_marquardt` returns.
+
+    Parameters
+    ----------
+    x : ndarray
+        The solution (the fitted vector, in its own units).
+    residual : ndarray
+        Residuals at ``x``.
+    jacobian : ndarray
+        Jacobian of the residuals at ``x``.
+    cost : float
+        ``0.5 |residual|^2``.
+    iterations, evaluations : int
+        Iterations and evaluations of ``fun``.
+    converged : bool
+        A tolerance was met (rather than the iteration limit).
+    message : str
+        Why it stopped.
+    cost_history : list of float
+        Cost after each accepted step (the start first).
+    active : ndarray of bool
+        Parameters held at a bound by the gradient.
+    """
 
     x: np.ndarray
     residual: np.ndarray

@@ -266,7 +266,7 @@ class OnlineEstimator:
     model : ForceModel or None
         Default: linear spring + linear damper.
     cutoff_hz : float
-        Corner of the state-variable filter (high-pass on positions). Below it the
+        Corner of the state-variable filter (high-pass on positions) [Hz]. Below it the
         integrated accelerations are not trusted.
     prior : mapping or None
         Prior means per unit sprung mass by parameter key or name (missing: typical values
@@ -287,14 +287,28 @@ class OnlineEstimator:
         Random-walk standard deviation of each parameter per sqrt(second), relative to
         the prior mean (0: constant parameters, a recursive least-squares fit).
     settle_s : float or None
-        Samples ignored after a start or a gap while the filters settle (default
+        Time ignored after a start or a gap while the filters settle [s] (default
         ``1 / cutoff_hz``).
     hac_window_s : float
-        Lag window of the autocorrelation correction of the uncertainty.
+        Lag window of the autocorrelation correction of the uncertainty [s].
     body_mass_kg : float or None
-        Sprung mass, if known (from an absolute fit): absolute values are reported too.
+        Sprung mass [kg], if known (from an absolute fit): absolute values are reported too.
     added_mass_kg : float
-        Mass on the body during this drive (the unit mass is M2 + dM).
+        Mass on the body during this drive [kg] (the unit mass is M2 + dM).
+
+    Raises
+    ------
+    FieldDiagError
+        A sample rate that is not positive, ``cutoff_hz`` outside (0, 0.1 x sample rate),
+        or a model with internal states (hysteresis).
+
+    Examples
+    --------
+    ::
+
+        est = OnlineEstimator(200.0).warm_up()
+        est.update(time_s, wheel_accel_mps2, body_accel_mps2)   # per block, in time order
+        print(format_status(est.status()))
     """
 
     def __init__(

@@ -37,7 +37,23 @@ TAPER = 0.3
 
 @dataclass
 class SuspensionMotion:
-    """Band-limited body acceleration, suspension travel and rate, and body displacement."""
+    """Band-limited body acceleration, suspension travel and rate, and body displacement.
+
+    Parameters
+    ----------
+    sample_rate_hz : float
+        Sample rate of the arrays [Hz].
+    band_hz : (float, float)
+        Integration band [Hz].
+    body_acc_mps2 : ndarray
+        Body acceleration a2 [m/s^2] (gravity, bias and drift removed).
+    r_m : ndarray
+        Suspension extension r = x2 - x1 [m], positive in rebound.
+    rdot_mps : ndarray
+        Its rate [m/s].
+    body_disp_m : ndarray
+        Body displacement x2 [m].
+    """
 
     sample_rate_hz: float
     band_hz: tuple[float, float]
