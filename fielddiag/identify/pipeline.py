@@ -715,7 +715,8 @@ def identify_sessions(
     before_path, after_path : str or PathLike
         Sessions without and with the added mass on the body.
     added_mass_kg : float or None
-        Mass added for the second drive [kg]; None: from the sessions' metadata.
+        Mass added for the second drive [kg]; None: the difference of the sessions' own
+        ``added_mass_kg`` metadata.
     band_hz : (float, float) or None
         Analysis band [Hz]; None chooses it from the coherence.
     config : IdentifyConfig or None
