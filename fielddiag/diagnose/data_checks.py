@@ -15,7 +15,21 @@ import numpy as np
 
 @dataclass(frozen=True)
 class DataWarning:
-    """A problem of the data; ``kind`` is a stable identifier, ``message`` plain language."""
+    """A problem of the data; ``kind`` is a stable identifier, ``message`` plain language.
+
+    Parameters
+    ----------
+    kind : str
+        ``clipping``, ``bias_drift``, ``sensor_gain_changed``, ``channel_time_offset``...
+    message : str
+        What is wrong and what to do.
+    session : str
+        ``before``, ``after`` or "" for both.
+    channel : str
+        The channel concerned, or "".
+    value : float or None
+        The measured size (clipped fraction, drift [m/s^2], gain change, offset [s]).
+    """
 
     kind: str
     message: str
@@ -24,6 +38,13 @@ class DataWarning:
     value: float | None = None
 
     def to_dict(self) -> dict:
+        """The JSON form.
+
+        Returns
+        -------
+        dict
+            ``{"kind", "message"}``.
+        """
         return {"kind": self.kind, "message": self.message}
 
 
@@ -32,10 +53,18 @@ def clipped_mask(values: np.ndarray, *, min_run: int = 3) -> np.ndarray:
     (a saturated accelerometer holds its full scale; a noisy signal reaches its maximum
     once). A level counts when at least 0.02 % of the samples (and 5) sit at it.
 
+    Parameters
+    ----------
+    values : ndarray
+        One channel's samples (any unit).
+    min_run : int
+        Fewest consecutive samples at the extreme that count as clipping.
+
     Returns
     -------
     ndarray of bool
-        True where a sample is clipped (all True for a constant signal).
+        True where a sample is clipped (all True for a constant signal; all False below
+        100 samples).
     """
     x = np.asarray(values, float)
     out = np.zeros(x.size, bool)
@@ -60,7 +89,25 @@ def check_clipping(
     values: np.ndarray, *, channel: str, session: str = "", min_run: int = 3
 ) -> DataWarning | None:
     """Saturation: the signal sits exactly at its extreme value in runs of samples
-    (:func:`clipped_mask`). Flags a channel when any sample is clipped."""
+    (:func:`clipped_mask`). Flags a channel when any sample is clipped.
+
+    Parameters
+    ----------
+    values : ndarray
+        One channel's samples (any unit).
+    channel : str
+        Channel name, for the message.
+    session : str
+        ``before``/``after`` or "".
+    min_run : int
+        As :func:`clipped_mask`.
+
+    Returns
+    -------
+    DataWarning or None
+        ``clipping`` with the clipped fraction as ``value`` (1.0 for a constant signal);
+        None when nothing is clipped or with fewer than 100 samples.
+    """
     x = np.asarray(values, float)
     if x.size < 100:
         return None
@@ -99,6 +146,27 @@ def check_bias_drift(
     so the mean of each ``window_s`` window is g + bias. A straight-line trend of the window
     means whose change over the drive exceeds ``min_change_mps2`` and 5x the scatter of the
     window means about it is a drifting bias (warming sensor, failing mount).
+
+    Parameters
+    ----------
+    time_s : ndarray
+        Sample times [s].
+    values : ndarray
+        Acceleration [m/s^2].
+    channel : str
+        Channel name, for the message.
+    session : str
+        ``before``/``after`` or "".
+    window_s : float
+        Averaging window [s]; at least 6 windows are needed.
+    min_change_mps2 : float
+        Smallest drift over the drive that is reported [m/s^2].
+
+    Returns
+    -------
+    DataWarning or None
+        ``bias_drift`` with the change over the drive [m/s^2] as ``value``; None for no
+        drift or a drive shorter than 6 windows.
     """
     t = np.asarray(time_s, float)
     x = np.asarray(values, float)
@@ -277,6 +345,27 @@ def check_gain_change(
     The diagnosis does not use this test as a verdict: it fits the gain as a competing
     hypothesis (:mod:`fielddiag.diagnose.data_hypotheses`); this stand-alone check is for
     quick looks at a pair.
+
+    Parameters
+    ----------
+    transmissibility : list of dict
+        Two drives' ``freq_hz``, ``measured`` (complex T), ``coherence`` and ``label``.
+    band_hz : (float, float)
+        Lines used [Hz].
+    added_mass_kg : float
+        Mass added for the second drive [kg].
+    start : dict
+        Linear model start values (as :func:`fit_gain_change`).
+    min_coherence : float
+        Lines below it are left out.
+    min_change : float
+        Smallest relative gain change reported (0.03 = 3 %).
+
+    Returns
+    -------
+    DataWarning or None
+        ``sensor_gain_changed`` (relative change as ``value``), or None: no significant
+        change, or one that does not explain the inconsistency (at least 70 %).
     """
     fit = fit_gain_change(transmissibility, band_hz, added_mass_kg=added_mass_kg,
                           start=start, min_coherence=min_coherence)
@@ -292,7 +381,22 @@ def check_gain_change(
 
 def gain_warning(label_a: str, label_b: str, change: float, std: float,
                  moved: str = "") -> DataWarning:
-    """The plain-language warning for a gain change of ``change`` (+- ``std``)."""
+    """The plain-language warning for a gain change of ``change`` (+- ``std``).
+
+    Parameters
+    ----------
+    label_a, label_b : str
+        Labels of the first and second drive.
+    change, std : float
+        Relative gain change of the second drive (gain - 1) and its standard deviation.
+    moved : str
+        Text appended to the advice (e.g. how the fit corrected it), or "".
+
+    Returns
+    -------
+    DataWarning
+        ``sensor_gain_changed`` for ``label_b``.
+    """
     return DataWarning(
         "sensor_gain_changed",
         f"the {label_b} drive's body/wheel transmissibility is {100 * change:+.1f} +- "
@@ -316,6 +420,15 @@ def fit_time_offset(
     A delay tau of the body channel multiplies the measured transmissibility by
     exp(-j 2 pi f tau): a phase error (measured against the fitted linear model) growing
     linearly with frequency.
+
+    Parameters
+    ----------
+    transmissibility : list of dict
+        Per drive ``freq_hz`` [Hz], ``measured`` and ``model`` (complex T) and ``coherence``.
+    band_hz : (float, float)
+        Lines used [Hz].
+    min_coherence : float
+        Lines below it are left out.
 
     Returns
     -------
@@ -356,6 +469,22 @@ def check_time_offset(
     The diagnosis fits the offset as a competing hypothesis instead
     (:mod:`fielddiag.diagnose.data_hypotheses`): asymmetric damping or a compliant top
     mount also bend the phase, and only held-out data can tell them apart.
+
+    Parameters
+    ----------
+    transmissibility : list of dict
+        As :func:`fit_time_offset`.
+    band_hz : (float, float)
+        Lines used [Hz].
+    min_coherence : float
+        Lines below it are left out.
+    min_offset_s : float
+        Smallest offset reported [s].
+
+    Returns
+    -------
+    DataWarning or None
+        ``channel_time_offset`` with the offset [s] as ``value``.
     """
     fit = fit_time_offset(transmissibility, band_hz, min_coherence=min_coherence)
     if fit is None:
@@ -367,7 +496,21 @@ def check_time_offset(
 
 
 def time_offset_warning(tau_s: float, std_s: float, moved: str = "") -> DataWarning:
-    """The plain-language warning for a body channel delayed by ``tau_s`` (+- ``std_s``)."""
+    """The plain-language warning for a body channel delayed by ``tau_s`` (+- ``std_s``).
+
+    Parameters
+    ----------
+    tau_s, std_s : float
+        Delay of the body channel [s] (negative: the wheel channel lags) and its standard
+        deviation [s].
+    moved : str
+        Text appended to the advice, or "".
+
+    Returns
+    -------
+    DataWarning
+        ``channel_time_offset``.
+    """
     which = "body channel lags" if tau_s > 0 else "wheel channel lags"
     return DataWarning(
         "channel_time_offset",

@@ -14,7 +14,15 @@ from scipy import signal
 
 @dataclass(frozen=True)
 class TimeWindow:
-    """A stretch where the residual stands out: [start_s, end_s), RMS over the typical RMS."""
+    """A stretch where the residual stands out: [start_s, end_s), RMS over the typical RMS.
+
+    Parameters
+    ----------
+    start_s, end_s : float
+        Start and end in the residual's time [s].
+    rms_ratio : float
+        Largest moving RMS inside the window over the typical (median) moving RMS.
+    """
 
     start_s: float
     end_s: float
@@ -22,7 +30,22 @@ class TimeWindow:
 
 
 def rolling_rms(x: np.ndarray, sample_rate_hz: float, window_s: float) -> np.ndarray:
-    """Centred moving RMS of ``x`` over ``window_s`` (same length as ``x``)."""
+    """Centred moving RMS of ``x`` over ``window_s`` (same length as ``x``).
+
+    Parameters
+    ----------
+    x : ndarray
+        Samples (any unit, e.g. a residual in m/s^2).
+    sample_rate_hz : float
+        Sample rate [Hz].
+    window_s : float
+        Window length [s] (at least one sample); the ends are padded with zeros.
+
+    Returns
+    -------
+    numpy.ndarray
+        Moving RMS, in the unit of ``x``.
+    """
     n = max(1, int(round(window_s * sample_rate_hz)))
     power = np.convolve(np.asarray(x, float) ** 2, np.ones(n) / n, mode="same")
     return np.sqrt(np.maximum(power, 0.0))
@@ -43,9 +66,11 @@ def residual_windows(
     Parameters
     ----------
     time_s, residual : ndarray
-        Residual samples and their times.
+        Residual samples and their times [s].
+    sample_rate_hz : float
+        Sample rate [Hz].
     window_s : float
-        Length of the moving RMS.
+        Length of the moving RMS [s]; each window is padded by half of it on either side.
     threshold : float
         Ratio to the median moving RMS (or to ``reference``'s) that marks a window.
     max_windows : int
@@ -89,10 +114,23 @@ def excess_band(
 ) -> tuple[float, float] | None:
     """The frequency band holding ``fraction`` of the residual power above the noise floor.
 
+    Parameters
+    ----------
+    freq_hz : ndarray
+        Frequencies of the PSD lines [Hz].
+    residual_psd : ndarray
+        PSD of the residual (e.g. [(m/s^2)^2/Hz], from :func:`residual_psd`).
+    noise_psd : ndarray or float
+        Noise floor in the same unit; only the power above it counts.
+    band_hz : (float, float) or None
+        Consider only lines inside this band [Hz].
+    fraction : float
+        Share of the excess power the band holds (centred: 0.8 gives the 10-90 % quantiles).
+
     Returns
     -------
     (lo_hz, hi_hz) or None
-        The central ``fraction`` of the excess power (10 %-90 % quantiles by default);
+        The central ``fraction`` of the excess power (10 %-90 % quantiles by default) [Hz];
         None when the residual does not exceed the noise anywhere.
     """
     f = np.asarray(freq_hz, float)
@@ -112,7 +150,24 @@ def excess_band(
 def residual_psd(
     residual: np.ndarray, sample_rate_hz: float, *, segment_s: float = 8.0
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Welch PSD of a residual (one-sided, units^2/Hz)."""
+    """Welch PSD of a residual (one-sided, units^2/Hz).
+
+    Parameters
+    ----------
+    residual : ndarray
+        Residual samples (e.g. body acceleration [m/s^2]).
+    sample_rate_hz : float
+        Sample rate [Hz].
+    segment_s : float
+        Welch segment length [s] (at least 64 samples, at most the whole record).
+
+    Returns
+    -------
+    freq_hz : ndarray
+        Frequencies [Hz].
+    psd : ndarray
+        One-sided PSD in the residual's unit squared per Hz (e.g. [(m/s^2)^2/Hz]).
+    """
     nper = int(min(len(residual), max(64, round(segment_s * sample_rate_hz))))
     return signal.welch(residual, fs=sample_rate_hz, nperseg=nper, detrend="constant")
 
@@ -123,6 +178,17 @@ class DepartureMap:
 
     ``mean[i, j]`` is the mean departure (N, or N/kg per unit mass) of the samples with r in
     bin i and rdot in bin j; ``count`` how many samples fell there (NaN mean where empty).
+
+    Parameters
+    ----------
+    r_edges_m : ndarray
+        Bin edges of the suspension extension r [m] (positive in rebound).
+    rdot_edges_mps : ndarray
+        Bin edges of its rate [m/s].
+    mean : ndarray
+        ``(n_r, n_rdot)`` mean departure per bin.
+    count : ndarray
+        ``(n_r, n_rdot)`` samples per bin.
     """
 
     r_edges_m: np.ndarray
@@ -133,7 +199,20 @@ class DepartureMap:
     def region(self, share: float = 0.5, min_count: int = 20) -> dict[str, list[float]] | None:
         """Bounding box of the bins holding ``share`` of the absolute departure.
 
-        Returns ``{"r_m": [lo, hi], "rdot_mps": [lo, hi]}`` or None if the map is empty.
+        Bins are weighted by |mean| times sqrt(count) (well-populated bins first); bins with
+        fewer than ``min_count`` samples are ignored.
+
+        Parameters
+        ----------
+        share : float
+            Share of the total weight the box covers (0..1).
+        min_count : int
+            Fewest samples a bin needs to count.
+
+        Returns
+        -------
+        dict or None
+            ``{"r_m": [lo, hi], "rdot_mps": [lo, hi]}`` [m], [m/s]; None if the map is empty.
         """
         weight = np.where(self.count >= min_count, np.abs(np.nan_to_num(self.mean)), 0.0)
         weight = weight * np.sqrt(self.count)  # favour well-populated bins
@@ -161,7 +240,34 @@ def departure_map(
     bins: int = 15,
     quantile: float = 0.005,
 ) -> DepartureMap:
-    """Bin a force departure over (r, rdot); the grid spans the central data range."""
+    """Bin a force departure over (r, rdot); the grid spans the central data range.
+
+    Parameters
+    ----------
+    r_m : ndarray
+        Suspension extension [m] (positive in rebound).
+    rdot_mps : ndarray
+        Its rate [m/s].
+    departure : ndarray
+        Departure of each sample from the fitted model (force on the body [N], or per unit
+        mass [N/kg = m/s^2]).
+    bins : int
+        Bins along each axis.
+    quantile : float
+        The grid spans the ``quantile`` to ``1 - quantile`` range of r and rdot (outliers
+        fall outside).
+
+    Returns
+    -------
+    DepartureMap
+
+    Examples
+    --------
+    ::
+
+        dmap = departure_map(val.displacement, val.velocity, baseline.residual_validation)
+        dmap.region()   # {"r_m": [...], "rdot_mps": [...]} where the linear model misses
+    """
     r = np.asarray(r_m, float)
     v = np.asarray(rdot_mps, float)
     d = np.asarray(departure, float)

@@ -25,7 +25,18 @@ _MODEL_LABELS = (  # key suffix -> (name, unit); the longest suffix that fits wi
 
 def model_parameter(key: str) -> tuple[str, str]:
     """Readable name and unit of a key of ``linear_model``/``augmented_model``:
-    ``suspension_stiffness_n_per_m_per_kg`` -> ("suspension stiffness", "N/m per kg")."""
+    ``suspension_stiffness_n_per_m_per_kg`` -> ("suspension stiffness", "N/m per kg").
+
+    Parameters
+    ----------
+    key : str
+        A parameter key of the diagnosis JSON.
+
+    Returns
+    -------
+    (str, str)
+        Name and unit; the unit is "" for keys without a known unit suffix.
+    """
     for suffix, label, unit in _MODEL_LABELS:
         if key.endswith(suffix):
             return label or key[: -len(suffix)].replace("_", " "), unit
@@ -43,7 +54,20 @@ def _fmt_model(model: dict, stds: dict | None = None) -> str:
 
 
 def format_summary(out: dict) -> str:
-    """Readable text of a diagnosis dict (vehicle or rig mode)."""
+    """Readable text of a diagnosis dict (vehicle or rig mode).
+
+    Parameters
+    ----------
+    out : dict
+        The JSON of ``fielddiag diagnose`` (``verdict``, ``baseline``, ``augmented``,
+        ``findings``, and optionally the model values, ``ride_height`` and ``warnings``).
+
+    Returns
+    -------
+    str
+        Several lines: the verdict, the held-out NRMSE of both models, each finding with its
+        parameters (SI units), where it acts, the fitted suspension and the warnings.
+    """
     lines = []
     mode = out.get("mode", "vehicle")
     head = "rig test" if mode == "rig" else "suspension"

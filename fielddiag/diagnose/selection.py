@@ -47,6 +47,27 @@ def paired_block_t(
     independent samples. Log ratios make the test fair to effects that act in a few
     events only (a bump stop): their gain is large where they act and nil elsewhere, which
     in raw differences would look like noise. Positive t favours b.
+
+    Parameters
+    ----------
+    residual_a, residual_b : ndarray
+        Held-out residuals of the two models on the same samples, in the data's unit (body
+        acceleration [m/s^2] in the vehicle diagnosis, force [N] in the rig mode).
+    n_blocks : int
+        Number of blocks; fewer when there are less than 50 samples per block (at least 2).
+
+    Returns
+    -------
+    float
+        Mean over standard error of the block log ratios (dimensionless); ``inf`` when every
+        block favours b equally, 0 when none does.
+
+    Examples
+    --------
+    ::
+
+        t = paired_block_t(linear.residual_validation, friction.residual_validation)
+        t >= MIN_T   # friction predicts the held-out data significantly better
     """
     a = np.asarray(residual_a, float) ** 2
     b = np.asarray(residual_b, float) ** 2
@@ -72,6 +93,24 @@ class CandidateFit:
 
     ``residual_validation`` holds the held-out residuals (concatenated over sessions, in a
     fixed order shared by all candidates) for the paired test.
+
+    Parameters
+    ----------
+    effects : tuple of str
+        The effects added to the linear model (empty for the baseline).
+    values, std : dict
+        Fitted parameter values and standard deviations by name (SI units as named).
+    nrmse_fit, nrmse_validation : float
+        Normalised RMS error on the fitted and on the held-out data (dimensionless).
+    residual_validation : ndarray
+        Held-out residuals (body acceleration [m/s^2], or force [N] in the rig mode).
+    n_params : int
+        Number of fitted parameters.
+    at_bound : tuple of str
+        Parameters pinned at a bound or otherwise unphysical (then the candidate is never
+        chosen).
+    extra : dict
+        What the caller wants to keep with the fit (the model, the data hypothesis).
     """
 
     effects: tuple[str, ...]
@@ -86,26 +125,60 @@ class CandidateFit:
 
     @property
     def mse_validation(self) -> float:
+        """Mean square of the held-out residuals (in the residual's unit squared, e.g. m^2/s^4)."""
         return float(np.mean(self.residual_validation**2))
 
     @property
     def physical(self) -> bool:
+        """True if no parameter is pinned at a bound (``at_bound`` empty)."""
         return not self.at_bound
 
 
 @dataclass(frozen=True)
 class Comparison:
-    """How a candidate compares with a reference model on held-out data."""
+    """How a candidate compares with a reference model on held-out data.
+
+    Parameters
+    ----------
+    t : float
+        :func:`paired_block_t` of the candidate against the reference (positive favours the
+        candidate).
+    relative_gain : float
+        Reduction of held-out mean-square error as a fraction of the reference's.
+    """
 
     t: float
     relative_gain: float  # reduction of held-out MSE, fraction of the reference's
 
     def beats(self, extra_params: int) -> bool:
+        """True if the candidate is significantly and usefully better than the reference.
+
+        Parameters
+        ----------
+        extra_params : int
+            Parameters the candidate has beyond the reference.
+
+        Returns
+        -------
+        bool
+            ``t >= MIN_T`` and ``relative_gain >= MIN_GAIN_PER_PARAM * max(1, extra_params)``.
+        """
         return self.t >= MIN_T and self.relative_gain >= MIN_GAIN_PER_PARAM * max(1, extra_params)
 
 
 def compare(reference: CandidateFit, candidate: CandidateFit) -> Comparison:
-    """Compare ``candidate`` against ``reference`` on their held-out residuals."""
+    """Compare ``candidate`` against ``reference`` on their held-out residuals.
+
+    Parameters
+    ----------
+    reference, candidate : CandidateFit
+        Fits whose ``residual_validation`` cover the same samples.
+
+    Returns
+    -------
+    Comparison
+        The paired-block t statistic and the relative reduction of held-out MSE.
+    """
     t = paired_block_t(reference.residual_validation, candidate.residual_validation)
     gain = 1.0 - candidate.mse_validation / reference.mse_validation
     return Comparison(t, gain)
@@ -113,7 +186,21 @@ def compare(reference: CandidateFit, candidate: CandidateFit) -> Comparison:
 
 @dataclass
 class Selection:
-    """The outcome: the chosen model and the evidence for it."""
+    """The outcome: the chosen model and the evidence for it.
+
+    Parameters
+    ----------
+    chosen : CandidateFit
+        The model selected (``baseline`` when no candidate beats it).
+    baseline : CandidateFit
+        The linear model.
+    comparison : Comparison or None
+        ``chosen`` against the baseline (None when the baseline stands).
+    ranking : list of (CandidateFit, Comparison)
+        All candidates against the baseline, lowest held-out MSE first.
+    rejected_unphysical : list of CandidateFit
+        Candidates left out because a parameter was pinned at a bound.
+    """
 
     chosen: CandidateFit
     baseline: CandidateFit
@@ -128,6 +215,24 @@ def select_model(baseline: CandidateFit, candidates: Sequence[CandidateFit]) -> 
     Single effects are compared with the baseline; a pair of effects must also beat the
     best single effect it contains. Candidates with a parameter pinned at a bound are
     unphysical and never chosen.
+
+    Parameters
+    ----------
+    baseline : CandidateFit
+        The linear model.
+    candidates : sequence of CandidateFit
+        Augmented models (one or two effects each), scored on the same held-out samples.
+
+    Returns
+    -------
+    Selection
+
+    Examples
+    --------
+    ::
+
+        sel = select_model(linear_fit, [friction_fit, bump_fit, friction_bump_fit])
+        sel.chosen.effects          # () when the linear model stands
     """
     ranking = sorted(
         ((c, compare(baseline, c)) for c in candidates), key=lambda cc: cc[0].mse_validation
@@ -157,7 +262,21 @@ def select_model(baseline: CandidateFit, candidates: Sequence[CandidateFit]) -> 
 
 
 def confidence(cmp: Comparison | None, explained_fraction: float) -> float:
-    """A 0..1 confidence from the test statistic and how much of the excess is explained."""
+    """A 0..1 confidence from the test statistic and how much of the excess is explained.
+
+    Parameters
+    ----------
+    cmp : Comparison or None
+        The chosen model against the baseline (None: the baseline stands).
+    explained_fraction : float
+        Share of the baseline's excess residual the chosen model removes (clipped to 0..1).
+
+    Returns
+    -------
+    float
+        ``(0.5 + 0.5 (1 - exp(-(t - MIN_T) / 3))) * explained_fraction``; 0 without a
+        comparison.
+    """
     if cmp is None:
         return 0.0
     sig = 1.0 - np.exp(-max(cmp.t - MIN_T, 0.0) / 3.0)

@@ -24,7 +24,18 @@ def _asymmetric_damping(r, rd, x2, p, c, dp):  # pragma: no cover - compiled
 @register_effect
 class AsymmetricDamping(Effect):
     """Damper with different compression (``rdot < 0``) and rebound coefficients:
-    force on the body ``-c rdot``. Replaces the linear damper in a model that has both."""
+    force on the body ``-c rdot``. Replaces the linear damper in a model that has both.
+
+    Parameters ``compression_damping_ns_per_m`` and ``rebound_damping_ns_per_m`` [N s/m]
+    (see :class:`~fielddiag.effects.base.Effect` for the constructor).
+
+    Examples
+    --------
+    A damper to simulate, and a model to fit with one::
+
+        AsymmetricDamping(compression_damping_ns_per_m=1200.0, rebound_damping_ns_per_m=2400.0)
+        model = LinearSpring() + AsymmetricDamping()   # replaces no damper: there is none
+    """
 
     name = "asymmetric_damping"
     diagnosable = True
@@ -40,15 +51,55 @@ class AsymmetricDamping(Effect):
     kernel = _asymmetric_damping
 
     def speed_bounds(self, values: Sequence[float]) -> tuple[float, float, float]:
+        """Largest stiffness [N/m], damping [N s/m] and rate [1/s] the damper can add.
+
+        Parameters
+        ----------
+        values : sequence of float
+            Parameter values in kernel order (compression, rebound damping [N s/m]).
+
+        Returns
+        -------
+        (float, float, float)
+            ``(0, max(compression, rebound), 0)``.
+        """
         return 0.0, max(values[0], values[1]), 0.0
 
     def start_values(self, r_m, start):
+        """Start values of a screening fit.
+
+        Both coefficients at the linear fit's damping.
+
+        Parameters
+        ----------
+        r_m : ndarray
+            Measured suspension extension [m] (positive in rebound); unused.
+        start : mapping
+            Values already known by model key (uses
+            ``linear_damper.suspension_damping_ns_per_m`` [N s/m]).
+
+        Returns
+        -------
+        dict
+            Both damping coefficients [N s/m], or empty when no linear damping is known.
+        """
         c = start.get("linear_damper.suspension_damping_ns_per_m")
         return {} if c is None else {"compression_damping_ns_per_m": c,
                                      "rebound_damping_ns_per_m": c}
 
     def unphysical(self, values: Mapping[str, float], std: Mapping[str, float]) -> bool:
-        """Symmetric after all: the two coefficients within 2 std of each other."""
+        """Symmetric after all: the two coefficients within 2 std of each other.
+
+        Parameters
+        ----------
+        values, std : mapping
+            Fitted values and standard deviations by parameter name [N s/m].
+
+        Returns
+        -------
+        bool
+            ``|c_compression - c_rebound| <= 2 hypot(std_compression, std_rebound)``.
+        """
         c = values.get("compression_damping_ns_per_m", math.nan)
         r = values.get("rebound_damping_ns_per_m", math.nan)
         sc = std.get("compression_damping_ns_per_m", 0.0)
@@ -56,6 +107,25 @@ class AsymmetricDamping(Effect):
         return bool(abs(c - r) <= 2.0 * math.hypot(sc, sr))
 
     def explain(self, params: Mapping[str, float], per: str = "", hidden: str = "") -> str:
+        """A sentence a technician can act on.
+
+        It gives the two coefficients [N s/m] and their ratio rebound/compression.
+
+        Parameters
+        ----------
+        params : mapping
+            Fitted physical parameters by name (``compression_damping_ns_per_m``,
+            ``rebound_damping_ns_per_m``;
+            ``_per_kg`` names in per-unit-mass mode).
+        per : str
+            Unit suffix for per-unit-mass values (`` per kg of sprung mass``) or "".
+        hidden : str
+            How the linear fit distorted its parameters to absorb the effect, or "".
+
+        Returns
+        -------
+        str
+        """
         cc = params.get("compression_damping_ns_per_m",
                         params.get("compression_damping_ns_per_m_per_kg", math.nan))
         cr = params.get("rebound_damping_ns_per_m",

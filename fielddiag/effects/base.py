@@ -117,15 +117,43 @@ class ParamSpec:
     significant: bool = False
 
     def per_unit_mass_name(self) -> str:
-        """Name of the per-unit-mass value (``..._per_kg`` for force-scaled parameters)."""
+        """Name of the per-unit-mass value (``..._per_kg`` for force-scaled parameters).
+
+        Returns
+        -------
+        str
+            ``name + "_per_kg"`` if ``scales_with_force``, else ``name``.
+        """
         return f"{self.name}_per_kg" if self.scales_with_force else self.name
 
     def per_unit_mass_unit(self) -> str:
-        """Unit of the per-unit-mass value."""
+        """Unit of the per-unit-mass value.
+
+        Returns
+        -------
+        str
+            ``unit + "/kg"`` if ``scales_with_force`` (``N/m/kg``), else ``unit``.
+        """
         return f"{self.unit}/kg" if self.scales_with_force else self.unit
 
     def check(self, owner: str, value: float) -> None:
-        """Raise FieldDiagError unless ``value`` is valid for a simulated effect."""
+        """Raise FieldDiagError unless ``value`` is valid for a simulated effect.
+
+        Valid means finite and at least ``valid_low`` (strictly above it if ``valid_strict``);
+        without ``valid_low`` the finite ``lower`` bound, if any, is the limit.
+
+        Parameters
+        ----------
+        owner : str
+            Name of the effect, for the message.
+        value : float
+            The absolute value in the parameter's unit (``unit``).
+
+        Raises
+        ------
+        FieldDiagError
+            The value is not finite or below the limit.
+        """
         low = self.valid_low
         if low is None and math.isfinite(self.lower):
             low = self.lower
@@ -191,6 +219,20 @@ class Effect:
     **kw : float
         Parameter values and settings by name. Without any parameter value the instance is
         a term of a model to fit.
+
+    Raises
+    ------
+    FieldDiagError
+        Too many values, an unknown name, a setting that is not a number >= 0, a missing
+        parameter, or a value :meth:`ParamSpec.check` refuses.
+
+    Examples
+    --------
+    ::
+
+        CoulombFriction()                          # a term of a model to fit
+        CoulombFriction(friction_force_n=80.0)     # an effect to simulate (v_s default)
+        LinearSpring() + LinearDamper() + CoulombFriction()   # a ForceModel
     """
 
     name: ClassVar[str]
@@ -273,12 +315,31 @@ class Effect:
         return tuple(p.name for p in self.params)
 
     def constant_values(self) -> np.ndarray:
-        """The settings as the kernel sees them (``constants`` order)."""
+        """The settings as the kernel sees them (``constants`` order).
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(len(constants),)`` values of the settings (SI, e.g. ``width_m`` [m]).
+        """
         return np.array([self.settings[k] for k in self.constants], dtype=float)
 
     def value_vector(self, values: Mapping[str, float] | Sequence[float] | None = None
                      ) -> np.ndarray:
-        """Parameter values in kernel order: given, else the instance's, else typical."""
+        """Parameter values in kernel order: given, else the instance's, else typical.
+
+        Parameters
+        ----------
+        values : mapping, sequence or None
+            A sequence is taken as the vector itself (kernel order); a mapping by parameter name
+            overrides the instance's values; missing names take ``ParamSpec.typical``.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(n_params,)`` values in the parameters' units (absolute, or per unit mass if
+            given so).
+        """
         if values is not None and not isinstance(values, Mapping):
             return np.asarray(values, dtype=float).reshape(-1)
         own = self.values or {}
@@ -289,7 +350,13 @@ class Effect:
     def to_dict(self) -> dict[str, Any]:
         """``{"name", "settings"}`` of a term, or ``{"name", "params"}`` of a simulated effect
         (plus ``settings`` where they differ from the defaults); inverse of
-        :func:`make_effect` / :func:`effect_from_dict`."""
+        :func:`make_effect` / :func:`effect_from_dict`.
+
+        Returns
+        -------
+        dict
+            JSON-ready; parameter values in SI units by their SI names.
+        """
         if self.values is None:
             return {"name": self.name, "settings": dict(self.settings)}
         out: dict[str, Any] = {"name": self.name, "params": dict(self.values)}
@@ -318,7 +385,13 @@ class Effect:
                      tuple(sorted((self.values or {}).items()))))
 
     def as_term(self) -> Effect:
-        """The same effect as a term of a model to fit (no values, the fit's settings)."""
+        """The same effect as a term of a model to fit (no values, the fit's settings).
+
+        Returns
+        -------
+        Effect
+            A new instance of the same class without parameter values.
+        """
         return type(self)()
 
     # ------------------------------------------------------------------ numerics
@@ -441,15 +514,25 @@ class Effect:
     def unphysical(self, values: Mapping[str, float], std: Mapping[str, float]) -> bool:
         """True if the fitted effect as a whole is not physical (beyond single parameters).
 
+        The base class never says so; subclasses add tests that involve several parameters
+        (asymmetric damping whose two coefficients agree).
+
         Parameters
         ----------
         values, std : mapping
             Fitted values and standard deviations by parameter name.
+
+        Returns
+        -------
+        bool
         """
         return False
 
     def explain(self, params: Mapping[str, float], per: str = "", hidden: str = "") -> str:
         """A sentence a technician can act on.
+
+        The base class lists the values after ``description``; subclasses word it for their
+        physics.
 
         Parameters
         ----------
@@ -459,6 +542,10 @@ class Effect:
             Unit suffix for per-unit-mass values (`` per kg of sprung mass``) or "".
         hidden : str
             How the linear fit distorted its parameters to absorb the effect, or "".
+
+        Returns
+        -------
+        str
         """
         vals = ", ".join(f"{k} = {v:.3g}" for k, v in params.items())
         return f"{self.description} ({vals}{per}){hidden}"
@@ -584,6 +671,13 @@ def make_effect(name: str, **params: Any) -> Effect:
 
 
 def diagnosis_effects() -> tuple[str, ...]:
-    """Names of the effects the diagnosis tries by default, by ``diagnosis_rank``."""
+    """Names of the effects the diagnosis tries by default, by ``diagnosis_rank``.
+
+    Returns
+    -------
+    tuple of str
+        Registered effects with ``diagnosable`` set and not ``linear``, lowest rank first
+        (ties by name).
+    """
     found = [(c.diagnosis_rank, n) for n, c in EFFECTS.items() if c.diagnosable and not c.linear]
     return tuple(n for _, n in sorted(found))

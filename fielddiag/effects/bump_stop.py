@@ -65,13 +65,59 @@ class BumpStop(Effect):
     kernel = _bump_stop
 
     def speed_bounds(self, values: Sequence[float]) -> tuple[float, float, float]:
+        """Largest stiffness [N/m], damping [N s/m] and rate [1/s] the bump stop can add.
+
+        Parameters
+        ----------
+        values : sequence of float
+            Parameter values in kernel order (gap [m], stiffness [N/m]).
+
+        Returns
+        -------
+        (float, float, float)
+            ``(stiffness, 0, 0)``.
+        """
         return values[1], 0.0, 0.0
 
     def start_values(self, r_m, start):
+        """Start values of a screening fit.
+
+        The gap just inside the compression the data reach.
+
+        Parameters
+        ----------
+        r_m : ndarray
+            Measured suspension extension [m] (positive in rebound).
+        start : mapping
+            Values already known by model key; unused.
+
+        Returns
+        -------
+        dict
+            ``{"gap_m": 95th percentile of -r_m}`` [m]; the stiffness takes its typical value.
+        """
         # just inside the travel the data reach: the stop may engage on the largest bumps
         return {"gap_m": float(np.quantile(-np.asarray(r_m), 0.95))}
 
     def explain(self, params: Mapping[str, float], per: str = "", hidden: str = "") -> str:
+        """A sentence a technician can act on.
+
+        It gives where the stop engages [mm into compression] and its stiffness [N/m].
+
+        Parameters
+        ----------
+        params : mapping
+            Fitted physical parameters by name (``gap_m``, ``stiffness_n_per_m``;
+            ``_per_kg`` names in per-unit-mass mode).
+        per : str
+            Unit suffix for per-unit-mass values (`` per kg of sprung mass``) or "".
+        hidden : str
+            How the linear fit distorted its parameters to absorb the effect, or "".
+
+        Returns
+        -------
+        str
+        """
         gap = params.get("gap_m", math.nan)
         k = params.get("stiffness_n_per_m", params.get("stiffness_n_per_m_per_kg", math.nan))
         return (

@@ -48,12 +48,54 @@ _FORCE_NAMES = ("model_force", "model_force_z")
 
 
 def model_force(r, rd, x2, th, cs, dth):  # pragma: no cover - placeholder
-    """Placeholder for the templates: replaced by each model's compiled force."""
+    """Placeholder for the templates: replaced by each model's compiled force.
+
+    Parameters
+    ----------
+    r, rd, x2 : float
+        Suspension extension [m], its rate [m/s], body position [m].
+    th, cs : ndarray
+        The model's parameter and constant vectors.
+    dth : ndarray
+        Receives dF/dtheta.
+
+    Returns
+    -------
+    (float, float, float, float)
+        In the compiled version: F [N or N/kg], dF/dr, dF/drdot, dF/dx2.
+
+    Raises
+    ------
+    NotImplementedError
+        Always: call it only from a template compiled by :func:`compile_templates`.
+    """
     raise NotImplementedError("templates are compiled per model by compile_templates")
 
 
 def model_force_z(r, rd, x2, z, th, cs, dth, dz):  # pragma: no cover - placeholder
-    """Placeholder for the templates (models with internal states)."""
+    """Placeholder for the templates (models with internal states).
+
+    Parameters
+    ----------
+    r, rd, x2 : float
+        Suspension extension [m], its rate [m/s], body position [m].
+    z : ndarray
+        The effects' internal states.
+    th, cs : ndarray
+        The model's parameter and constant vectors.
+    dth, dz : ndarray
+        Receive dF/dtheta and dz/dt.
+
+    Returns
+    -------
+    (float, float, float, float)
+        In the compiled version: F [N or N/kg], dF/dr, dF/drdot, dF/dx2.
+
+    Raises
+    ------
+    NotImplementedError
+        Always: call it only from a template compiled by :func:`compile_templates`.
+    """
     raise NotImplementedError("templates are compiled per model by compile_templates")
 
 

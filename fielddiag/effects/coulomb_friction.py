@@ -57,13 +57,59 @@ class CoulombFriction(Effect):
     kernel = _coulomb_friction
 
     def speed_bounds(self, values: Sequence[float]) -> tuple[float, float, float]:
+        """Largest stiffness [N/m], damping [N s/m] and rate [1/s] the friction can add.
+
+        Parameters
+        ----------
+        values : sequence of float
+            Parameter values in kernel order (friction force [N], smoothing velocity [m/s]).
+
+        Returns
+        -------
+        (float, float, float)
+            ``(0, Ff / v_s, 0)``: the slope of the tanh at rdot = 0 [N s/m].
+        """
         return 0.0, values[0] / values[1], 0.0
 
     def start_values(self, r_m, start):
+        """Start values of a screening fit.
+
+        A small friction force, which the fit grows only where the data want it.
+
+        Parameters
+        ----------
+        r_m : ndarray
+            Measured suspension extension [m] (positive in rebound); unused.
+        start : mapping
+            Values already known by model key; unused.
+
+        Returns
+        -------
+        dict
+            ``{"friction_force_n": 2 % of the typical force}`` [N].
+        """
         # a small friction: the screening fit grows it only where the data want it
         return {"friction_force_n": 0.02 * self.params[0].typical}
 
     def explain(self, params: Mapping[str, float], per: str = "", hidden: str = "") -> str:
+        """A sentence a technician can act on.
+
+        It gives the friction force [N] and what to check.
+
+        Parameters
+        ----------
+        params : mapping
+            Fitted physical parameters by name (``friction_force_n``;
+            ``_per_kg`` names in per-unit-mass mode).
+        per : str
+            Unit suffix for per-unit-mass values (`` per kg of sprung mass``) or "".
+        hidden : str
+            How the linear fit distorted its parameters to absorb the effect, or "".
+
+        Returns
+        -------
+        str
+        """
         f = params.get("friction_force_n", params.get("friction_force_n_per_kg", math.nan))
         return (
             f"dry friction of about {f:.3g} N{per} in the strut{hidden}. Check the strut "

@@ -48,9 +48,34 @@ class HystereticSpring(Effect):
     kernel = _hysteretic_spring
 
     def static_states(self, r: float, values: Sequence[float]) -> np.ndarray:
-        """``z`` reached when loaded slowly and monotonically from r = 0 to ``r``."""
+        """``z`` reached when loaded slowly and monotonically from r = 0 to ``r``.
+
+        Parameters
+        ----------
+        r : float
+            Suspension extension [m].
+        values : sequence of float
+            Parameter values in kernel order (stiffness [N/m], yield displacement [m]).
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(1,)``: ``sign(r) z_y (1 - exp(-|r| / z_y))`` [m].
+        """
         z_y = values[1]
         return np.array([math.copysign(z_y * -math.expm1(-abs(r) / z_y), r)])
 
     def speed_bounds(self, values: Sequence[float]) -> tuple[float, float, float]:
+        """Largest stiffness [N/m], damping [N s/m] and rate [1/s] the hysteretic spring can add.
+
+        Parameters
+        ----------
+        values : sequence of float
+            Parameter values in kernel order (stiffness [N/m], yield displacement [m]).
+
+        Returns
+        -------
+        (float, float, float)
+            ``(k_h, 0, RATE_BOUND_MPS / z_y)``: the rate is that of the state ``z``.
+        """
         return values[0], 0.0, RATE_BOUND_MPS / values[1]

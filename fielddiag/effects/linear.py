@@ -33,6 +33,18 @@ class LinearSpring(Effect):
     kernel = _linear_spring
 
     def speed_bounds(self, values: Sequence[float]) -> tuple[float, float, float]:
+        """Largest stiffness [N/m], damping [N s/m] and rate [1/s] the spring can add.
+
+        Parameters
+        ----------
+        values : sequence of float
+            Parameter values in kernel order (suspension stiffness K2 [N/m]).
+
+        Returns
+        -------
+        (float, float, float)
+            ``(|K2|, 0, 0)``.
+        """
         return abs(values[0]), 0.0, 0.0
 
 
@@ -56,6 +68,18 @@ class LinearDamper(Effect):
     kernel = _linear_damper
 
     def speed_bounds(self, values: Sequence[float]) -> tuple[float, float, float]:
+        """Largest stiffness [N/m], damping [N s/m] and rate [1/s] the damper can add.
+
+        Parameters
+        ----------
+        values : sequence of float
+            Parameter values in kernel order (suspension damping C2 [N s/m]).
+
+        Returns
+        -------
+        (float, float, float)
+            ``(0, |C2|, 0)``.
+        """
         return 0.0, abs(values[0]), 0.0
 
 
@@ -80,4 +104,20 @@ class CouplingSpring(Effect):
     kernel = _coupling_spring
 
     def start_values(self, r_m, start):
+        """Start values of a screening fit.
+
+        No coupling (K3 = 0).
+
+        Parameters
+        ----------
+        r_m : ndarray
+            Measured suspension extension [m] (positive in rebound); unused.
+        start : mapping
+            Values already known by model key; unused.
+
+        Returns
+        -------
+        dict
+            ``{"coupling_stiffness_n_per_m": 0.0}`` [N/m].
+        """
         return {"coupling_stiffness_n_per_m": 0.0}

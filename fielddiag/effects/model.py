@@ -62,10 +62,23 @@ class ForceModel:
         The terms. A term listed in another's ``replaces`` is dropped (asymmetric damping
         replaces the linear damper); a term given twice is an error.
 
+    Raises
+    ------
+    FieldDiagError
+        A term that is not an :class:`Effect`, a term given twice, or no term left.
+
     Notes
     -----
     Parameters are addressed by key ``"<term>.<param>"``; :meth:`index` also accepts a
     parameter's plain name when it is unique in the model.
+
+    Examples
+    --------
+    ::
+
+        model = LinearSpring() + LinearDamper() + CoulombFriction()
+        model.param_keys[2]            # 'coulomb_friction.friction_force_n'
+        model.vector({"friction_force_n": 80.0})   # the others at typical values
     """
 
     def __init__(self, terms: Iterable[Effect]) -> None:
@@ -111,12 +124,23 @@ class ForceModel:
         return " + ".join(repr(t) for t in self.terms)
 
     def without(self, *names: str) -> ForceModel:
-        """The model without the named terms."""
+        """The model without the named terms.
+
+        Parameters
+        ----------
+        *names : str
+            Term names (``"coulomb_friction"``); unknown names are ignored.
+
+        Returns
+        -------
+        ForceModel
+        """
         return ForceModel([t for t in self.terms if t.name not in names])
 
     # ------------------------------------------------------------------ parameters
     @property
     def n_params(self) -> int:
+        """Number of parameters of all terms together."""
         return len(self._specs)
 
     @property
@@ -140,7 +164,23 @@ class ForceModel:
         return all(t.linear_in_params for t in self.terms)
 
     def index(self, name: str) -> int:
-        """Position of a parameter given by key or by unique plain (or ``_per_kg``) name."""
+        """Position of a parameter given by key or by unique plain (or ``_per_kg``) name.
+
+        Parameters
+        ----------
+        name : str
+            ``"<term>.<param>"``, or a parameter name unique in the model.
+
+        Returns
+        -------
+        int
+            Index into the parameter vector.
+
+        Raises
+        ------
+        FieldDiagError
+            The name is ambiguous or not in the model.
+        """
         keys = self.param_keys
         if name in keys:
             return keys.index(name)
@@ -160,10 +200,22 @@ class ForceModel:
         Parameters
         ----------
         values : mapping, sequence or None
-            By key or unique name; None gives the typical values.
+            By key or unique name; None gives the typical values. A sequence must have
+            ``n_params`` entries and is copied as is.
         per_unit_mass_kg : float or None
-            If given, divide the typical values of force-scaled parameters by this mass
+            If given, divide the typical values of force-scaled parameters by this mass [kg]
             (typical values are absolute).
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(n_params,)`` in the parameters' units (per kg for force-scaled ones when
+            ``per_unit_mass_kg`` is given).
+
+        Raises
+        ------
+        FieldDiagError
+            A sequence of the wrong length, or an unknown name.
         """
         if values is not None and not isinstance(values, Mapping):
             v = np.asarray(values, dtype=float).reshape(-1)
@@ -185,14 +237,22 @@ class ForceModel:
 
     @property
     def lower(self) -> np.ndarray:
+        """Lower bounds of the parameters (absolute SI values; ``-inf`` when free)."""
         return np.array([p.lower for p in self.specs], dtype=float)
 
     @property
     def upper(self) -> np.ndarray:
+        """Upper bounds of the parameters (absolute SI values; ``inf`` when free)."""
         return np.array([p.upper for p in self.specs], dtype=float)
 
     def constant_values(self) -> np.ndarray:
-        """All terms' constants, concatenated in model order."""
+        """All terms' constants, concatenated in model order.
+
+        Returns
+        -------
+        numpy.ndarray
+            The settings of every term (SI, e.g. the bump stop's ``width_m`` [m]).
+        """
         parts = [t.constant_values() for t in self.terms]
         return np.concatenate(parts) if parts else np.zeros(0)
 
@@ -202,8 +262,22 @@ class ForceModel:
 
         A template is a plain function (no decorator) that calls the global
         ``model_force(r, rdot, x2, theta, consts, dtheta)``; see
-        :func:`fielddiag.effects.compose.compile_templates`. Returns a namespace of the
-        compiled functions, cached in memory and on disk per combination of effect classes.
+        :func:`fielddiag.effects.compose.compile_templates`.
+
+        Parameters
+        ----------
+        module_name : str
+            Importable module holding the templates.
+        *names : str
+            Template function names.
+        error_model : str
+            numba's error model (``"python"`` or ``"numpy"``).
+
+        Returns
+        -------
+        namespace
+            The compiled functions by name, cached in memory and on disk per combination of
+            effect classes.
         """
         return compile_templates(tuple(type(t) for t in self.terms), module_name,
                                  tuple(names), error_model)
@@ -257,7 +331,29 @@ class ForceModel:
         values: Mapping[str, float] | Sequence[float] | np.ndarray,
         states: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """:meth:`force` plus the rates ``dz/dt`` (n, n_states) of the internal states."""
+        """:meth:`force` plus the rates ``dz/dt`` (n, n_states) of the internal states.
+
+        Parameters
+        ----------
+        r, rdot, x2 : array_like
+            Suspension extension [m] (positive in rebound), its rate [m/s] and body position [m]
+            (broadcast).
+        values : mapping or sequence
+            Parameter values (absolute, or per unit mass for a force per unit mass).
+        states : (n, n_states) array or None
+            Internal states (default zeros; broadcast over the n points).
+
+        Returns
+        -------
+        force : (n,) array
+            Force on the body [N] (or per unit mass, m/s^2).
+        d_state : (n, 3) array
+            dF/dr, dF/drdot, dF/dx2.
+        d_params : (n, n_params) array
+            Derivatives with respect to the parameters.
+        state_rates : (n, n_states) array
+            ``dz/dt`` of the internal states.
+        """
         r, rdot, x2 = np.broadcast_arrays(np.asarray(r, float), np.asarray(rdot, float),
                                           np.asarray(x2, float))
         n = r.size
@@ -270,7 +366,20 @@ class ForceModel:
                     self.constant_values())
 
     def static_states(self, r: float, values: Sequence[float] | np.ndarray) -> np.ndarray:
-        """Internal states of all effects at rest at extension ``r`` [m] (loaded slowly)."""
+        """Internal states of all effects at rest at extension ``r`` [m] (loaded slowly).
+
+        Parameters
+        ----------
+        r : float
+            Suspension extension [m].
+        values : sequence of float
+            Parameter vector in model order.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(n_states,)``; empty for a memoryless model.
+        """
         th = self.vector(values)
         parts, p0 = [], 0
         for t in self.terms:
@@ -283,7 +392,22 @@ class ForceModel:
     def static_force(self, r: float, x2: float,
                      values: Sequence[float] | np.ndarray) -> float:
         """Force at rest [N] at extension ``r`` and body position ``x2`` [m]: the sum of the
-        effects' :meth:`~fielddiag.effects.base.Effect.static_force_n`."""
+        effects' :meth:`~fielddiag.effects.base.Effect.static_force_n`.
+
+        Parameters
+        ----------
+        r : float
+            Suspension extension [m] (positive in rebound).
+        x2 : float
+            Body position [m].
+        values : sequence of float
+            Parameter vector in model order (absolute, or per unit mass for N/kg).
+
+        Returns
+        -------
+        float
+            Force on the body with ``rdot`` = 0 [N] (or [N/kg]).
+        """
         th = self.vector(values)
         total, p0 = 0.0, 0
         for t in self.terms:
@@ -294,7 +418,18 @@ class ForceModel:
 
     def values_of(self, overrides: Mapping[str, float] | None = None) -> np.ndarray:
         """Parameter vector from the values the effects carry (simulated effects), then
-        ``overrides`` by key or name; typical values for the rest."""
+        ``overrides`` by key or name; typical values for the rest.
+
+        Parameters
+        ----------
+        overrides : mapping or None
+            Values by key or unique name (SI units as named).
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(n_params,)`` absolute values in model order.
+        """
         out = np.concatenate([t.value_vector() for t in self.terms]) if self.terms else \
             np.zeros(0)
         for k, v in (overrides or {}).items():
@@ -303,22 +438,78 @@ class ForceModel:
 
     # ------------------------------------------------------------------ serialisation
     def to_dict(self) -> dict[str, Any]:
-        """``{"terms": [{"name", "settings"}, ...]}``; inverse of :meth:`from_dict`."""
+        """``{"terms": [{"name", "settings"}, ...]}``; inverse of :meth:`from_dict`.
+
+        Returns
+        -------
+        dict
+            JSON-ready; settings in SI units.
+        """
         return {"terms": [t.to_dict() for t in self.terms]}
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> ForceModel:
-        """Inverse of :meth:`to_dict`."""
+        """Inverse of :meth:`to_dict`.
+
+        Parameters
+        ----------
+        d : mapping
+            ``{"terms": [{"name": ..., "settings": {...}}, ...]}``.
+
+        Returns
+        -------
+        ForceModel
+
+        Raises
+        ------
+        FieldDiagError
+            An unknown term name or setting.
+        """
         return cls(get_effect(t["name"])(**t.get("settings", {})) for t in d["terms"])
 
     @classmethod
     def from_names(cls, names: Iterable[str]) -> ForceModel:
-        """A model from term names (``["linear_spring", "linear_damper"]``)."""
+        """A model from term names (``["linear_spring", "linear_damper"]``).
+
+        Parameters
+        ----------
+        names : iterable of str
+            Registered term names; each term takes its fit settings.
+
+        Returns
+        -------
+        ForceModel
+
+        Raises
+        ------
+        FieldDiagError
+            An unknown term name.
+        """
         return cls(get_effect(n)() for n in names)
 
 
 def linear_model(coupling: bool = False) -> ForceModel:
-    """Linear spring + linear damper (+ coupling spring)."""
+    """Linear spring + linear damper (+ coupling spring).
+
+    Parameters
+    ----------
+    coupling : bool
+        Add the coupling spring ``-K3 x2``.
+
+    Returns
+    -------
+    ForceModel
+        Parameters K2 [N/m], C2 [N s/m] (and K3 [N/m]).
+
+    Examples
+    --------
+    ::
+
+        linear_model(coupling=True).param_keys
+        # ('linear_spring.suspension_stiffness_n_per_m',
+        #  'linear_damper.suspension_damping_ns_per_m',
+        #  'coupling_spring.coupling_stiffness_n_per_m')
+    """
     m = get_effect("linear_spring")() + get_effect("linear_damper")()
     return m + get_effect("coupling_spring")() if coupling else m
 
@@ -367,7 +558,19 @@ def model_from_sim(params: Any, effects: Sequence[Effect] = (), *, coupling: boo
 
 def split_shape(params: dict[str, float]) -> tuple[dict[str, float], dict[str, float]]:
     """(physical parameters, shape parameters) of an effect's fitted values, by name (see
-    :attr:`ParamSpec.shape`); per-kg names of shape parameters are the same names."""
+    :attr:`ParamSpec.shape`); per-kg names of shape parameters are the same names.
+
+    Parameters
+    ----------
+    params : dict
+        Fitted values by parameter name.
+
+    Returns
+    -------
+    (dict, dict)
+        The physical parameters and the shape parameters (such as
+        ``smoothing_velocity_mps`` [m/s]), by name.
+    """
     shape_names = {p.name for cls in EFFECTS.values() for p in cls.params if p.shape}
     return ({k: v for k, v in params.items() if k not in shape_names},
             {k: v for k, v in params.items() if k in shape_names})

@@ -33,4 +33,16 @@ class QuadraticDamping(Effect):
     kernel = _quadratic_damping
 
     def speed_bounds(self, values: Sequence[float]) -> tuple[float, float, float]:
+        """Largest stiffness [N/m], damping [N s/m] and rate [1/s] the orifice damping can add.
+
+        Parameters
+        ----------
+        values : sequence of float
+            Parameter values in kernel order (damping c_q [N s^2/m^2]).
+
+        Returns
+        -------
+        (float, float, float)
+            ``(0, 2 c_q RATE_BOUND_MPS, 0)``: its largest tangent damping.
+        """
         return 0.0, 2 * values[0] * RATE_BOUND_MPS, 0.0

@@ -53,20 +53,64 @@ THETA_NAMES = (
 
 def model_transmissibility(theta: Sequence[float], freq_hz: np.ndarray,
                            added_mass_kg: float = 0.0) -> np.ndarray:
-    """Linear body/wheel transmissibility ``(K2 + jwC2) / (K2 + K3 - w^2 (M2+dM) + jwC2)``."""
+    """Linear body/wheel transmissibility ``(K2 + jwC2) / (K2 + K3 - w^2 (M2+dM) + jwC2)``.
+
+    Parameters
+    ----------
+    theta : sequence of float
+        ``[M2 kg, K2 N/m, C2 N s/m, K3 N/m]`` (:data:`THETA_NAMES`).
+    freq_hz : ndarray
+        Frequencies [Hz].
+    added_mass_kg : float
+        Mass dM added on the body [kg].
+
+    Returns
+    -------
+    numpy.ndarray
+        Complex T = A2/A1 (dimensionless) at each frequency.
+
+    Examples
+    --------
+    ::
+
+        t = model_transmissibility([380.0, 24e3, 1.8e3, 0.0], np.linspace(0.5, 20, 200))
+        abs(t).max()   # resonance peak of the body on its spring
+    """
     m2, k2, c2, k3 = theta
     w = 2 * np.pi * np.asarray(freq_hz, dtype=float)
     return (k2 + 1j * w * c2) / (k2 + k3 - w * w * (m2 + added_mass_kg) + 1j * w * c2)
 
 
 def natural_frequency_hz(theta: Sequence[float]) -> float:
-    """Undamped body frequency ``sqrt((K2 + K3) / M2) / 2 pi`` (wheel held still)."""
+    """Undamped body frequency ``sqrt((K2 + K3) / M2) / 2 pi`` (wheel held still).
+
+    Parameters
+    ----------
+    theta : sequence of float
+        ``[M2 kg, K2 N/m, C2 N s/m, K3 N/m]``.
+
+    Returns
+    -------
+    float
+        Frequency [Hz]; 0 when K2 + K3 <= 0, NaN when M2 <= 0.
+    """
     m2, k2, _, k3 = theta
     return math.sqrt(max(k2 + k3, 0.0) / m2) / (2 * math.pi) if m2 > 0 else float("nan")
 
 
 def damping_ratio(theta: Sequence[float]) -> float:
-    """``C2 / (2 sqrt((K2 + K3) M2))``."""
+    """``C2 / (2 sqrt((K2 + K3) M2))``.
+
+    Parameters
+    ----------
+    theta : sequence of float
+        ``[M2 kg, K2 N/m, C2 N s/m, K3 N/m]``.
+
+    Returns
+    -------
+    float
+        Damping ratio (dimensionless); NaN when K2 + K3 <= 0 or M2 <= 0.
+    """
     m2, k2, c2, k3 = theta
     k = k2 + k3
     return c2 / (2 * math.sqrt(k * m2)) if k > 0 and m2 > 0 else float("nan")
@@ -85,7 +129,23 @@ DERIVED: dict[str, Callable[[Sequence[float]], float]] = {
 
 @dataclass
 class SessionLines:
-    """The in-band lines of one session, ready for the frequency-domain fit."""
+    """The in-band lines of one session, ready for the frequency-domain fit.
+
+    Parameters
+    ----------
+    freq_hz : ndarray
+        Frequencies of the lines [Hz].
+    gxx, gyy : ndarray
+        Averaged auto-spectra of the wheel and body accelerations [(m/s^2)^2/Hz].
+    gxy : ndarray
+        Averaged cross-spectrum wheel -> body [(m/s^2)^2/Hz], complex.
+    n_averages : int
+        Welch segments averaged.
+    noise_x, noise_y : float
+        White-noise densities of the wheel and body accelerometers [(m/s^2)^2/Hz].
+    added_mass_kg : float
+        Mass added on the body in this session [kg].
+    """
 
     freq_hz: np.ndarray
     gxx: np.ndarray
@@ -99,6 +159,23 @@ class SessionLines:
     @classmethod
     def from_spectra(cls, spectra: CrossSpectra, band_hz: tuple[float, float], noise_x: float,
                      noise_y: float, added_mass_kg: float) -> SessionLines:
+        """The lines of ``spectra`` inside ``band_hz``.
+
+        Parameters
+        ----------
+        spectra : CrossSpectra
+            Averaged wheel (x) and body (y) acceleration spectra of one session.
+        band_hz : (float, float)
+            Band [Hz], edges included.
+        noise_x, noise_y : float
+            White-noise densities of the wheel and body accelerometers [(m/s^2)^2/Hz].
+        added_mass_kg : float
+            Mass added on the body for this session [kg].
+
+        Returns
+        -------
+        SessionLines
+        """
         m = (spectra.freq_hz >= band_hz[0]) & (spectra.freq_hz <= band_hz[1])
         return cls(spectra.freq_hz[m], spectra.gxx[m], spectra.gyy[m], spectra.gxy[m],
                    spectra.n_averages, float(noise_x), float(noise_y), float(added_mass_kg))
@@ -113,7 +190,25 @@ class SessionLines:
 
 @dataclass
 class FitOutcome:
-    """One least-squares fit: parameters, cost, and the least-squares covariance."""
+    """One least-squares fit: parameters, cost, and the least-squares covariance.
+
+    Parameters
+    ----------
+    theta : ndarray
+        ``[M2 kg, K2 N/m, C2 N s/m, K3 N/m]`` (:data:`THETA_NAMES`); K3 = 0 when not fitted.
+    cost : float
+        Sum of squared (prewhitened, dimensionless) residuals at the solution.
+    n_residuals : int
+        Number of residuals.
+    include_k3 : bool
+        K3 was fitted.
+    covariance : ndarray
+        ``(4, 4)`` least-squares covariance of ``theta`` (SI units squared).
+    converged : bool
+        The optimiser reported success.
+    message : str
+        The optimiser's message.
+    """
 
     theta: np.ndarray
     cost: float
@@ -151,6 +246,18 @@ def linear_start(lines: Sequence[SessionLines], include_k3: bool) -> np.ndarray:
 
     Real and imaginary parts of ``-w^2 T M2 + (T - 1) K2 + jw (T - 1) C2 + T K3 = w^2 dM T``
     over the lines of both sessions. Biased (noise in the regressors), so only a start.
+
+    Parameters
+    ----------
+    lines : sequence of SessionLines
+        The in-band lines of both sessions (with their added masses).
+    include_k3 : bool
+        Fit K3; otherwise it is held at 0.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``[M2 kg, K2 N/m, C2 N s/m, K3 N/m]``.
     """
     rows, rhs = [], []
     for s in lines:
@@ -247,6 +354,26 @@ class RouteEstimate:
     uncertain and sometimes low by chance. ``derived`` holds (value, jackknife std) of the
     body natural frequency and damping ratio. ``replicates`` are the jackknife estimates,
     one row per left-out block.
+
+    Parameters
+    ----------
+    name : str
+        ``"frequency"`` or ``"time"``.
+    theta, std, lsq_std : ndarray
+        ``[M2 kg, K2 N/m, C2 N s/m, K3 N/m]`` (:data:`THETA_NAMES`),
+        their standard deviations and the least-squares ones (same units).
+    include_k3 : bool
+        K3 was fitted (else held at 0).
+    derived : dict of str to (float, float)
+        ``body_natural_frequency_hz`` [Hz] and ``damping_ratio`` with their std.
+    replicates : ndarray
+        ``(n_blocks, 4)`` jackknife estimates.
+    cost : float
+        Final cost (sum of squared prewhitened residuals, dimensionless).
+    n_residuals : int
+        Number of residuals.
+    notes : list of str
+        Remarks (a fit that did not converge).
     """
 
     name: str
@@ -352,6 +479,30 @@ class TimeRoutePiece:
     (band window applied, scaled for an inverse FFT of length ``n_fft_out``); the
     residual is evaluated on the output samples ``keep`` (record ends trimmed), whose
     jackknife block is ``block_of``.
+
+    Parameters
+    ----------
+    session : int
+        Index of the session (0 before, 1 after).
+    freq_hz : ndarray
+        Frequencies of the FFT lines kept [Hz].
+    wheel_spec, body_spec : ndarray
+        Windowed FFT lines of the wheel and body accelerations (m/s^2 per line, complex).
+    n_fft_out : int
+        Length of the inverse FFT (sets the output rate).
+    keep : slice
+        Output samples used in the residual.
+    block_of : ndarray
+        Jackknife block of each kept sample.
+    noise_x, noise_y : float
+        White-noise densities of the wheel and body accelerometers [(m/s^2)^2/Hz].
+    added_mass_kg : float
+        Mass added on the body in this session [kg].
+    norm : float
+        RMS per output sample of prewhitened band-limited unit white noise (the residual
+        is divided by it).
+    output_rate_hz : float
+        Sample rate of the residual [Hz].
     """
 
     session: int
@@ -387,6 +538,34 @@ def prepare_time_piece(
 
     Returns None when the stretch is too short to keep anything after trimming its ends
     (3 periods of the lower band edge each side).
+
+    Parameters
+    ----------
+    wheel_mps2, body_mps2 : ndarray
+        Wheel and body accelerometer readings of the stretch [m/s^2] (offset and drift are
+        removed here).
+    sample_rate_hz : float
+        Sample rate [Hz].
+    band_hz : (float, float)
+        Analysis band [Hz]; a cosine taper of ``taper`` (relative) extends it on both sides.
+    session : int
+        Index of the session (0 before, 1 after).
+    noise_x, noise_y : float
+        White-noise densities of the wheel and body accelerometers [(m/s^2)^2/Hz].
+    added_mass_kg : float
+        Mass added on the body in this session [kg].
+    block_edges_s : ndarray
+        Edges of the session's jackknife time blocks [s].
+    start_s : float
+        Time of the stretch's first sample in the session [s].
+    output_rate_hz : float or None
+        Resample the residual to about this rate [Hz] (None: the input rate).
+    taper : float
+        Relative width of the band window's tapers.
+
+    Returns
+    -------
+    TimeRoutePiece or None
     """
     n = wheel_mps2.size
     lo, hi = band_hz
@@ -519,6 +698,16 @@ def route_agreement(a: RouteEstimate, b: RouteEstimate) -> dict[str, float]:
 
     The routes use the same data, so this is conservative: a value above 3 means they
     disagree by more than their uncertainties allow.
+
+    Parameters
+    ----------
+    a, b : RouteEstimate
+        The two routes' estimates (``frequency`` and ``time``).
+
+    Returns
+    -------
+    dict of str to float
+        ``|theta_a - theta_b| / hypot(std_a, std_b)`` by :data:`THETA_NAMES` (dimensionless).
     """
     out = {}
     for i, name in enumerate(THETA_NAMES):
@@ -563,6 +752,17 @@ class PairConsistency:
     and nothing else changed, gives the same M2 both ways (within their std); drives of
     different cars or corners, swapped drives, or a suspension whose damping is not linear
     (friction: its equivalent damping depends on the amplitude) do not.
+
+    Parameters
+    ----------
+    ratios_before, ratios_after : (float, float)
+        ``(K2/M2 [1/s^2], C2/M2 [1/s])`` of each drive alone.
+    mass_from_stiffness_kg, mass_from_stiffness_std_kg : float
+        M2 implied by the stiffness ratios and its jackknife std [kg].
+    mass_from_damping_kg, mass_from_damping_std_kg : float
+        M2 implied by the damping ratios and its std [kg].
+    stiffness_drop_z : float
+        ``(k_before - k_after) / std``: positive when the mass was added.
     """
 
     ratios_before: tuple[float, float]
@@ -575,7 +775,7 @@ class PairConsistency:
 
     @property
     def disagreement_z(self) -> float:
-        """|M2 from stiffness - M2 from damping| in units of their combined std."""
+        """|M2 from stiffness - M2 from damping| in units of their combined std (dimensionless)."""
         s = math.hypot(self.mass_from_stiffness_std_kg, self.mass_from_damping_std_kg)
         d = abs(self.mass_from_stiffness_kg - self.mass_from_damping_kg)
         return d / s if s > 0 else float("inf")

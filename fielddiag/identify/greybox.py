@@ -411,7 +411,22 @@ def _rel(std: float, value: float) -> float:
 
 def validate_greybox(result: GreyBoxResult, data: Sequence[GreyBoxData], *,
                      substeps: int = 1) -> list[SessionFit]:
-    """NRMSE of a fitted model on data not used in the fit (see :func:`validation_runs`)."""
+    """NRMSE of a fitted model on data not used in the fit (see :func:`validation_runs`).
+
+    Parameters
+    ----------
+    result : GreyBoxResult
+        A fit.
+    data : sequence of GreyBoxData
+        Held-out sessions; only their initial body offset and velocity are fitted.
+    substeps : int
+        RK4 steps per sample interval.
+
+    Returns
+    -------
+    list of SessionFit
+        One per session, ``role="validation"``, with NRMSE and residual RMS [m/s^2].
+    """
     return [run[0] for run in validation_runs(result, data, substeps=substeps)]
 
 
@@ -430,6 +445,8 @@ def validation_runs(result: GreyBoxResult, data: Sequence[GreyBoxData], *,
     data : sequence of GreyBoxData
         Held-out segments or drives. In per-unit-mass mode their added mass must equal the
         fit data's.
+    substeps : int
+        RK4 steps per sample interval.
 
     Returns
     -------
@@ -437,6 +454,11 @@ def validation_runs(result: GreyBoxResult, data: Sequence[GreyBoxData], *,
         One per session, ``role="validation"``, with the band-limited measured body
         acceleration, the residual (measured - simulated) and the recording time of each
         residual sample (edges trimmed by the band filter are left out).
+
+    Raises
+    ------
+    FieldDiagError
+        A per-unit-mass fit validated on data with another added mass.
     """
     model = ForceModel.from_dict(result.model)
     theta_u = np.array([result.per_unit_mass[k] for k in model.param_keys])

@@ -79,14 +79,32 @@ class GreyBoxData:
 
     @property
     def n_samples(self) -> int:
+        """Number of samples."""
         return int(self.body_accel_mps2.size)
 
     @property
     def duration_s(self) -> float:
+        """Duration of the data [s] (``n_samples / sample_rate_hz``)."""
         return self.n_samples / self.sample_rate_hz
 
     def segment(self, start_s: float | None = None, end_s: float | None = None) -> GreyBoxData:
-        """The samples with ``start_s <= t < end_s`` (times from this data's first sample)."""
+        """The samples with ``start_s <= t < end_s`` (times from this data's first sample).
+
+        Parameters
+        ----------
+        start_s, end_s : float or None
+            Start and end [s] from the first sample (None: the beginning, the end).
+
+        Returns
+        -------
+        GreyBoxData
+            A copy of the stretch; its ``start_s`` and ``name`` say where it was cut.
+
+        Raises
+        ------
+        InsufficientDataError
+            Fewer than 2 samples in the stretch.
+        """
         fs = self.sample_rate_hz
         i0 = 0 if start_s is None else max(0, int(round(start_s * fs)))
         i1 = self.n_samples if end_s is None else min(self.n_samples, int(round(end_s * fs)))
@@ -106,7 +124,22 @@ class GreyBoxData:
                             f"{(self.start_s + i1 / fs):.1f} s]")
 
     def split(self, fit_fraction: float = 0.75) -> tuple[GreyBoxData, GreyBoxData]:
-        """(first ``fit_fraction`` of the record, the rest) for fit and validation."""
+        """(first ``fit_fraction`` of the record, the rest) for fit and validation.
+
+        Parameters
+        ----------
+        fit_fraction : float
+            Share of the duration used for the fit, in (0, 1).
+
+        Returns
+        -------
+        (GreyBoxData, GreyBoxData)
+
+        Raises
+        ------
+        FieldDiagError
+            ``fit_fraction`` outside (0, 1).
+        """
         if not 0.0 < fit_fraction < 1.0:
             raise FieldDiagError(f"fit_fraction={fit_fraction} must be in (0, 1)")
         cut = self.duration_s * fit_fraction
@@ -133,8 +166,31 @@ class GreyBoxData:
 
         Parameters
         ----------
+        wheel_accel_mps2, body_accel_mps2 : ndarray
+            Wheel and body accelerometer readings [m/s^2], equal lengths.
+        sample_rate_hz : float
+            Sample rate [Hz].
         band_hz : (float, float) or None
-            Valid band; None chooses it with :func:`default_band_hz`.
+            Valid band [Hz]; None chooses it with :func:`default_band_hz`.
+        added_mass_kg : float
+            Mass added on the body for this drive [kg].
+        name : str
+            Name in messages and results.
+        start_s : float
+            Session time of the first sample [s].
+
+        Returns
+        -------
+        GreyBoxData
+            Wheel displacement [m] and velocity [m/s], body acceleration [m/s^2], displacement
+            and velocity, all band-limited alike.
+
+        Raises
+        ------
+        FieldDiagError
+            Readings of different lengths, holding NaN or inf, or that cannot be integrated.
+        InsufficientDataError
+            The record is shorter than 4 periods of the lower band edge.
         """
         from fielddiag import dsp
 
@@ -169,9 +225,19 @@ class GreyBoxData:
 
         Parameters
         ----------
+        drive : SimulatedDrive
+            A simulated drive (its readings in m/s^2 and true states in m, m/s).
         truth : bool
             True: the simulator's true wheel motion and body acceleration, full band
             ("perfect data"). False: the accelerometer readings, integrated like a recording.
+        band_hz : (float, float) or None
+            Band of the integration [Hz] when ``truth`` is False (None: :func:`default_band_hz`).
+        name : str
+            Name in messages and results (default ``sim seed <seed>``).
+
+        Returns
+        -------
+        GreyBoxData
         """
         name = name or f"sim seed {drive.seed}"
         if truth:
@@ -226,6 +292,23 @@ def default_band_hz(sample_rate_hz: float, n_samples: int | None = None) -> tupl
     It spans the body bounce (~1-2 Hz) and the wheel hop (~10-15 Hz) of a car corner,
     keeps twice-integrated accelerometer noise and drift out below 0.5 Hz, and stays below
     the anti-alias filter of any DAQ sampling at 100 Hz or more.
+
+    Parameters
+    ----------
+    sample_rate_hz : float
+        Sample rate [Hz]; the upper edge is at most 0.3 of it.
+    n_samples : int or None
+        Length of the record; the lower edge is at least 8 cycles of it.
+
+    Returns
+    -------
+    (float, float)
+        ``(low_hz, high_hz)``.
+
+    Raises
+    ------
+    InsufficientDataError
+        The record is too short or too slowly sampled to leave a band of two octaves.
     """
     lo = 0.5
     if n_samples:

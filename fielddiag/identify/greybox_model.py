@@ -159,6 +159,7 @@ class GreyBoxProblem:
 
     @property
     def n_residuals(self) -> int:
+        """Number of residuals over all sessions (trimmed samples)."""
         return sum(pr.measured.size for pr in self._prep)
 
     # ------------------------------------------------------------------ parameter maps
@@ -170,7 +171,23 @@ class GreyBoxProblem:
         return 1.0, 0.0
 
     def unpack(self, z: np.ndarray) -> tuple[np.ndarray, float | None, np.ndarray]:
-        """Fitted vector -> (per-unit-mass model parameters, M2 or None, nuisances (s, 2))."""
+        """Fitted vector -> (per-unit-mass model parameters, M2 or None, nuisances (s, 2)).
+
+        Parameters
+        ----------
+        z : ndarray
+            ``(n_fit,)``: free model parameters per unit mass, then ``1/M2`` [1/kg] when the mass
+            is fitted, then per session the initial body offset [m] and velocity [m/s].
+
+        Returns
+        -------
+        theta : ndarray
+            ``(n_model,)`` model parameters per unit mass (fixed ones filled in).
+        mass : float or None
+            Sprung mass M2 [kg] in absolute mode, else None.
+        nuisances : ndarray
+            ``(n_sessions, 2)`` initial offset [m] and velocity [m/s] (zeros when not fitted).
+        """
         theta = np.empty(self.n_model)
         theta[self.free_model] = z[: self.free_model.size]
         mass = None
@@ -186,6 +203,22 @@ class GreyBoxProblem:
 
     def pack(self, theta_unit: np.ndarray, mass: float | None,
              nuis: np.ndarray | None = None) -> np.ndarray:
+        """Inverse of :meth:`unpack`: the fitted vector ``z``.
+
+        Parameters
+        ----------
+        theta_unit : ndarray
+            ``(n_model,)`` model parameters per unit mass (only the free ones are used).
+        mass : float or None
+            Sprung mass M2 [kg] (used when it is fitted; stored as ``1/M2``).
+        nuis : ndarray or None
+            ``(n_sessions, 2)`` initial offset [m] and velocity [m/s]; None: zeros.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(n_fit,)``.
+        """
         z = [theta_unit[self.free_model]]
         if self.has_mass:
             z.append([1.0 / float(mass)])
@@ -194,6 +227,16 @@ class GreyBoxProblem:
         return np.concatenate([np.asarray(a, float) for a in z])
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Lower and upper bounds of the fitted vector ``z``.
+
+        The model parameters take their :class:`~fielddiag.effects.ForceModel` bounds, ``1/M2``
+        the inverse of the mass range [1/kg], the nuisances none.
+
+        Returns
+        -------
+        (numpy.ndarray, numpy.ndarray)
+            ``(n_fit,)`` each.
+        """
         lo = [self.model.lower[self.free_model]]
         hi = [self.model.upper[self.free_model]]
         if self.has_mass:  # fitted as the inverse mass 1/M2 [1/kg] (nearly linear)
@@ -206,7 +249,21 @@ class GreyBoxProblem:
 
     # ------------------------------------------------------------------ residuals
     def simulate(self, z: np.ndarray, sens: bool) -> list[tuple[np.ndarray, np.ndarray | None]]:
-        """Per session: (filtered, trimmed a2_sim, filtered trimmed d a2 / d z)."""
+        """Per session: (filtered, trimmed a2_sim, filtered trimmed d a2 / d z).
+
+        Parameters
+        ----------
+        z : ndarray
+            The fitted vector (see :meth:`unpack`).
+        sens : bool
+            Also integrate the sensitivity equations for the Jacobian.
+
+        Returns
+        -------
+        list of (ndarray, ndarray or None)
+            Per session the simulated body acceleration [m/s^2] (band-filtered like the
+            measurement, ends trimmed) and its Jacobian ``(n, n_fit)`` (None without ``sens``).
+        """
         theta_u, mass, nuis = self.unpack(z)
         kern = _kernels(self.model)._simulate
         consts = self.model.constant_values()
@@ -254,7 +311,20 @@ class GreyBoxProblem:
         return out
 
     def residual_and_jacobian(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Stacked residuals (simulated - measured) and their Jacobian wrt ``z``."""
+        """Stacked residuals (simulated - measured) and their Jacobian wrt ``z``.
+
+        Parameters
+        ----------
+        z : ndarray
+            The fitted vector (see :meth:`unpack`).
+
+        Returns
+        -------
+        residual : ndarray
+            ``(n_residuals,)`` body acceleration [m/s^2], sessions one after the other.
+        jacobian : ndarray
+            ``(n_residuals, n_fit)``.
+        """
         sims = self.simulate(z, True)
         r = np.concatenate([a - pr.measured for (a, _), pr in zip(sims, self._prep,
                                                                     strict=True)])
@@ -262,12 +332,30 @@ class GreyBoxProblem:
         return r, j
 
     def residual(self, z: np.ndarray) -> np.ndarray:
-        """Stacked residuals only (no sensitivities): for finite-difference comparisons."""
+        """Stacked residuals only (no sensitivities): for finite-difference comparisons.
+
+        Parameters
+        ----------
+        z : ndarray
+            The fitted vector (see :meth:`unpack`).
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(n_residuals,)`` simulated - measured body acceleration [m/s^2].
+        """
         sims = self.simulate(z, False)
         return np.concatenate([a - pr.measured for (a, _), pr in zip(sims, self._prep,
                                                                       strict=True)])
 
     def session_slices(self) -> list[slice]:
+        """Where each session's residuals lie in the stacked residual vector.
+
+        Returns
+        -------
+        list of slice
+            One per session, in order.
+        """
         out, i = [], 0
         for pr in self._prep:
             out.append(slice(i, i + pr.measured.size))
@@ -282,6 +370,14 @@ class GreyBoxProblem:
         on the force derivatives of the linear-in-parameter terms at typical values; the
         sprung mass follows from the ratio of the first force-scaled parameter between
         the two groups. Falls back to typical values where this fails.
+
+        Returns
+        -------
+        theta : ndarray
+            ``(n_model,)`` model parameters per unit mass, clipped to the bounds.
+        mass : float or None
+            Sprung mass M2 [kg] in absolute mode (the guess, 380 kg by default, if the two
+            groups do not give one), else None.
         """
         model = self.model
         guess_mass = self.body_mass_guess_kg or 380.0

@@ -93,6 +93,12 @@ class ParameterEstimate:
     label: str = ""
 
     def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dict of the fields (NaN and inf become None).
+
+        Returns
+        -------
+        dict
+        """
         d = asdict(self)
         for k in ("value", "std", "rel_std_pct"):
             d[k] = _num(d[k])
@@ -100,6 +106,17 @@ class ParameterEstimate:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> ParameterEstimate:
+        """Inverse of :meth:`to_dict`.
+
+        Parameters
+        ----------
+        d : dict
+            As made by :meth:`to_dict` (None read back as NaN).
+
+        Returns
+        -------
+        ParameterEstimate
+        """
         d = dict(d)
         for k in ("value", "std", "rel_std_pct"):
             d[k] = _back(d.get(k))
@@ -140,6 +157,12 @@ class SessionFit:
     initial_velocity_mps: float = 0.0
 
     def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dict of the fields (NaN and inf become None).
+
+        Returns
+        -------
+        dict
+        """
         d = asdict(self)
         for k in ("nrmse", "residual_rms_mps2"):
             d[k] = _num(d[k])
@@ -147,6 +170,17 @@ class SessionFit:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> SessionFit:
+        """Inverse of :meth:`to_dict`.
+
+        Parameters
+        ----------
+        d : dict
+            As made by :meth:`to_dict` (None read back as NaN).
+
+        Returns
+        -------
+        SessionFit
+        """
         d = dict(d)
         for k in ("nrmse", "residual_rms_mps2"):
             d[k] = _back(d.get(k))
@@ -214,7 +248,23 @@ class GreyBoxResult:
 
     # ------------------------------------------------------------------ access
     def parameter(self, name: str) -> ParameterEstimate:
-        """A reported parameter by name or key (``suspension_stiffness_n_per_m``)."""
+        """A reported parameter by name or key (``suspension_stiffness_n_per_m``).
+
+        Parameters
+        ----------
+        name : str
+            Name, key (``linear_spring.suspension_stiffness_n_per_m``), or the plain name of a
+            parameter reported per unit mass (``..._per_kg``).
+
+        Returns
+        -------
+        ParameterEstimate
+
+        Raises
+        ------
+        FieldDiagError
+            The fit has no such parameter.
+        """
         for p in self.parameters:
             if name in (p.name, p.key):
                 return p
@@ -226,11 +276,43 @@ class GreyBoxResult:
         )
 
     def value(self, name: str) -> float:
-        """Estimate of a reported parameter."""
+        """Estimate of a reported parameter.
+
+        Parameters
+        ----------
+        name : str
+            As :meth:`parameter`.
+
+        Returns
+        -------
+        float
+            In the parameter's reported unit (SI, or per kg in per-unit-mass mode).
+
+        Raises
+        ------
+        FieldDiagError
+            The fit has no such parameter.
+        """
         return self.parameter(name).value
 
     def std(self, name: str) -> float:
-        """Standard deviation of a reported parameter."""
+        """Standard deviation of a reported parameter.
+
+        Parameters
+        ----------
+        name : str
+            As :meth:`parameter`.
+
+        Returns
+        -------
+        float
+            In the parameter's reported unit.
+
+        Raises
+        ------
+        FieldDiagError
+            The fit has no such parameter.
+        """
         return self.parameter(name).std
 
     @property
@@ -242,17 +324,45 @@ class GreyBoxResult:
         return None
 
     def fit_sessions(self) -> list[SessionFit]:
+        """The sessions the model was fitted to.
+
+        Returns
+        -------
+        list of SessionFit
+            ``role == "fit"``.
+        """
         return [s for s in self.sessions if s.role == "fit"]
 
     def validation_sessions(self) -> list[SessionFit]:
+        """The held-out sessions the fit was checked on.
+
+        Returns
+        -------
+        list of SessionFit
+            ``role == "validation"``.
+        """
         return [s for s in self.sessions if s.role == "validation"]
 
     def correlation_matrix(self) -> np.ndarray:
+        """Correlation of the fitted parameters (order of ``correlation_names``).
+
+        Returns
+        -------
+        numpy.ndarray
+            Square, dimensionless; NaN where undefined.
+        """
         return np.array(self.correlation, dtype=float)
 
     # ------------------------------------------------------------------ text
     def summary(self) -> str:
-        """Human-readable table of the parameters, fit quality and validation."""
+        """Human-readable table of the parameters, fit quality and validation.
+
+        Returns
+        -------
+        str
+            Several lines: model and solver statistics, each parameter with value, std,
+            relative std and unit, strong correlations (|rho| > 0.9) and each session's NRMSE.
+        """
         lines = [
             f"grey-box fit ({self.mode.replace('_', ' ')}), model: "
             + " + ".join(t["name"] for t in self.model["terms"]),
@@ -285,7 +395,13 @@ class GreyBoxResult:
 
     # ------------------------------------------------------------------ JSON
     def to_dict(self) -> dict[str, Any]:
-        """JSON-serialisable dict (NaN and inf become null)."""
+        """JSON-serialisable dict (NaN and inf become null).
+
+        Returns
+        -------
+        dict
+            ``kind = "fielddiag.greybox_fit"``; values in SI units as named.
+        """
         return {
             "kind": "fielddiag.greybox_fit",
             "model": self.model,
@@ -308,7 +424,22 @@ class GreyBoxResult:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> GreyBoxResult:
-        """Inverse of :meth:`to_dict`."""
+        """Inverse of :meth:`to_dict`.
+
+        Parameters
+        ----------
+        d : dict
+            As made by :meth:`to_dict`.
+
+        Returns
+        -------
+        GreyBoxResult
+
+        Raises
+        ------
+        FieldDiagError
+            ``d`` lacks a field of a grey-box result.
+        """
         try:
             return cls(
                 model=d["model"],

@@ -32,7 +32,29 @@ __all__ = ["LMOutcome", "hac_covariance", "levenberg_marquardt", "scipy_trf", "s
 
 @dataclass
 class LMOutcome:
-    """What :func:`levenberg_marquardt` returns."""
+    """What :func:`levenberg_marquardt` returns.
+
+    Parameters
+    ----------
+    x : ndarray
+        The solution (the fitted vector, in its own units).
+    residual : ndarray
+        Residuals at ``x``.
+    jacobian : ndarray
+        Jacobian of the residuals at ``x``.
+    cost : float
+        ``0.5 |residual|^2``.
+    iterations, evaluations : int
+        Iterations and evaluations of ``fun``.
+    converged : bool
+        A tolerance was met (rather than the iteration limit).
+    message : str
+        Why it stopped.
+    cost_history : list of float
+        Cost after each accepted step (the start first).
+    active : ndarray of bool
+        Parameters held at a bound by the gradient.
+    """
 
     x: np.ndarray
     residual: np.ndarray
@@ -70,9 +92,26 @@ def levenberg_marquardt(
     ``J``, never decreasing) and Nielsen's update of ``lam``. Every trial point costs one
     evaluation of ``fun``; its Jacobian is reused when the step is accepted.
 
+    Parameters
+    ----------
+    fun : callable
+        ``fun(x) -> (r, J)``: residuals ``(m,)`` and Jacobian ``(m, n)``.
+    x0 : ndarray
+        Start ``(n,)`` (clipped into the bounds).
+    lower, upper : ndarray
+        Bounds ``(n,)`` (``-inf``/``inf`` for none).
+    max_iterations : int
+        Largest number of accepted or rejected iterations.
+    xtol, ftol, gtol : float
+        Relative step, relative cost decrease and scaled gradient tolerances.
+    callback : callable or None
+        ``callback(iteration, x, cost)`` after each accepted step.
+
     Returns
     -------
     LMOutcome
+        The solution, its residuals, Jacobian and cost, the counts, whether it converged
+        (and why it stopped), the cost history and the parameters held at a bound.
     """
     x = np.clip(np.asarray(x0, float), lower, upper)
     r, jac = fun(x)
@@ -168,6 +207,25 @@ def scipy_trf(
 
     ``fun(x) -> (r, J)`` gives both at once; the Jacobian of the last evaluated point is
     kept for scipy's ``jac`` call. ``max_iterations`` bounds the evaluations of ``fun``.
+
+    Parameters
+    ----------
+    fun : callable
+        ``fun(x) -> (r, J)``.
+    x0 : ndarray
+        Start (clipped into the bounds).
+    lower, upper : ndarray
+        Bounds (``-inf``/``inf`` for none).
+    max_iterations : int
+        Largest number of evaluations of ``fun`` (scipy's ``max_nfev``).
+    xtol, ftol, gtol : float
+        scipy's tolerances.
+    callback : callable or None
+        ``callback(iteration, x, cost)`` at each Jacobian evaluation.
+
+    Returns
+    -------
+    LMOutcome
     """
     last: dict[str, Any] = {}
     history: list[float] = []
@@ -206,7 +264,24 @@ def scipy_trf(
 
 def solve(method: str, *args: Any, **kw: Any) -> LMOutcome:
     """Run the named optimiser (``"lm"``: :func:`levenberg_marquardt`; ``"trf"``:
-    :func:`scipy_trf`) with the arguments of :func:`levenberg_marquardt`."""
+    :func:`scipy_trf`) with the arguments of :func:`levenberg_marquardt`.
+
+    Parameters
+    ----------
+    method : str
+        ``"lm"`` or ``"trf"``.
+    *args, **kw
+        Passed on (``fun, x0, lower, upper`` and the options).
+
+    Returns
+    -------
+    LMOutcome
+
+    Raises
+    ------
+    ValueError
+        Unknown ``method`` (the callers check the user's choice first).
+    """
     if method == "lm":
         return levenberg_marquardt(*args, **kw)
     if method == "trf":

@@ -227,6 +227,12 @@ def advice_line(parameters: Sequence[Mapping[str, Any]], *, enough: bool,
     explained, min_explained : float or None, float
         Fraction of the (filtered) body acceleration the model explains, and the least
         fraction at which its parameters mean anything.
+
+    Returns
+    -------
+    str
+        Wait for data, drive on a rougher road, which parameters are not yet observable
+        and how to excite them, the worst parameter against its goal, or "enough data".
     """
     if not started:
         return "waiting for data: start driving"
@@ -260,7 +266,7 @@ class OnlineEstimator:
     model : ForceModel or None
         Default: linear spring + linear damper.
     cutoff_hz : float
-        Corner of the state-variable filter (high-pass on positions). Below it the
+        Corner of the state-variable filter (high-pass on positions) [Hz]. Below it the
         integrated accelerations are not trusted.
     prior : mapping or None
         Prior means per unit sprung mass by parameter key or name (missing: typical values
@@ -281,14 +287,28 @@ class OnlineEstimator:
         Random-walk standard deviation of each parameter per sqrt(second), relative to
         the prior mean (0: constant parameters, a recursive least-squares fit).
     settle_s : float or None
-        Samples ignored after a start or a gap while the filters settle (default
+        Time ignored after a start or a gap while the filters settle [s] (default
         ``1 / cutoff_hz``).
     hac_window_s : float
-        Lag window of the autocorrelation correction of the uncertainty.
+        Lag window of the autocorrelation correction of the uncertainty [s].
     body_mass_kg : float or None
-        Sprung mass, if known (from an absolute fit): absolute values are reported too.
+        Sprung mass [kg], if known (from an absolute fit): absolute values are reported too.
     added_mass_kg : float
-        Mass on the body during this drive (the unit mass is M2 + dM).
+        Mass on the body during this drive [kg] (the unit mass is M2 + dM).
+
+    Raises
+    ------
+    FieldDiagError
+        A sample rate that is not positive, ``cutoff_hz`` outside (0, 0.1 x sample rate),
+        or a model with internal states (hysteresis).
+
+    Examples
+    --------
+    ::
+
+        est = OnlineEstimator(200.0).warm_up()
+        est.update(time_s, wheel_accel_mps2, body_accel_mps2)   # per block, in time order
+        print(format_status(est.status()))
     """
 
     def __init__(
@@ -366,7 +386,15 @@ class OnlineEstimator:
             self.processing_time_s = 0.0
 
     def warm_up(self) -> OnlineEstimator:
-        """Compile the numba kernel now (a few seconds) instead of on the first block."""
+        """Compile the numba kernel now (a few seconds) instead of on the first block.
+
+        The estimator's state is restored afterwards.
+
+        Returns
+        -------
+        OnlineEstimator
+            ``self``, for chaining.
+        """
         saved = (self._theta.copy(), self._pm.copy(), self._st.copy(), self._svf.copy(),
                  self._sum_e.copy(), self._sum_phi.copy(), self._ring_e.copy(),
                  self._ring_phi.copy())
@@ -390,6 +418,19 @@ class OnlineEstimator:
 
         Blocks must arrive in time order; a jump in time (a gap) restarts the filters
         without forgetting the parameter estimates.
+
+        Parameters
+        ----------
+        time_s : ndarray
+            Session times of the samples [s].
+        wheel_accel_mps2, body_accel_mps2 : ndarray
+            Wheel and body accelerometer readings [m/s^2] (gravity included); samples that are
+            not finite are dropped.
+
+        Raises
+        ------
+        FieldDiagError
+            The three arrays differ in length.
         """
         t = np.ascontiguousarray(time_s, dtype=float).reshape(-1)
         aw = np.ascontiguousarray(wheel_accel_mps2, dtype=float).reshape(-1)
@@ -459,7 +500,13 @@ class OnlineEstimator:
         return np.maximum(kappa, 1.0)
 
     def estimates(self) -> dict[str, float]:
-        """Current estimates per unit mass by parameter key."""
+        """Current estimates per unit mass by parameter key.
+
+        Returns
+        -------
+        dict of str to float
+            ``K2/M2`` [N/m/kg], ``C2/M2`` [N s/m/kg]... by model key.
+        """
         with self._lock:
             return dict(zip(self.model.param_keys, self._theta[:-1].tolist(), strict=True))
 
@@ -561,6 +608,15 @@ def format_estimate(st: Mapping[str, Any]) -> str:
 
     E.g. ``on-line (12.0 s): stiffness 63.2 N/m/kg ±1.2 % 8.1 bit | damping 4.74 N s/m/kg
     ±5.3 % 3.2 bit``.
+
+    Parameters
+    ----------
+    st : mapping
+        A status dict (``duration_s`` and ``parameters``).
+
+    Returns
+    -------
+    str
     """
     parts = []
     for p in st["parameters"]:
@@ -575,7 +631,17 @@ def format_estimate(st: Mapping[str, Any]) -> str:
 
 
 def format_status(st: Mapping[str, Any]) -> str:
-    """One console line of :meth:`OnlineEstimator.status`: the estimate and the advice."""
+    """One console line of :meth:`OnlineEstimator.status`: the estimate and the advice.
+
+    Parameters
+    ----------
+    st : mapping
+        A status dict.
+
+    Returns
+    -------
+    str
+    """
     return format_estimate(st) + " | advice: " + st["advice"]
 
 

@@ -667,6 +667,35 @@ def identify_sessions(
 
     The two files are first checked as a pair (:func:`fielddiag.pairs.check_pair`): the same
     file twice, swapped drives or different vehicles are refused, doubtful pairs warned.
+
+    Parameters
+    ----------
+    before_path, after_path : str or PathLike
+        Sessions without and with the added mass on the body.
+    added_mass_kg : float or None
+        Mass added for the second drive [kg]; None: the difference of the sessions' own
+        ``added_mass_kg`` metadata.
+    band_hz : (float, float) or None
+        Analysis band [Hz]; None chooses it from the coherence.
+    config : IdentifyConfig or None
+        Options of the identification (None: defaults).
+    progress : callable or None
+        ``progress(fraction, message)`` as the work proceeds.
+
+    Returns
+    -------
+    IdentificationResult
+        Sprung mass [kg], stiffness [N/m], damping [N s/m] (and coupling [N/m]) with their
+        standard deviations, and the pair's warnings.
+
+    Raises
+    ------
+    ChannelNotFoundError, SessionError
+        A session lacks its wheel or body channel, or cannot be read as a uniform record.
+    PairError
+        The two files are not a before/after pair of one vehicle.
+    InsufficientDataError
+        The drives are too short or too poorly excited.
     """
     from fielddiag.pairs import check_pair_files
 

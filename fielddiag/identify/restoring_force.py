@@ -37,7 +37,23 @@ TAPER = 0.3
 
 @dataclass
 class SuspensionMotion:
-    """Band-limited body acceleration, suspension travel and rate, and body displacement."""
+    """Band-limited body acceleration, suspension travel and rate, and body displacement.
+
+    Parameters
+    ----------
+    sample_rate_hz : float
+        Sample rate of the arrays [Hz].
+    band_hz : (float, float)
+        Integration band [Hz].
+    body_acc_mps2 : ndarray
+        Body acceleration a2 [m/s^2] (gravity, bias and drift removed).
+    r_m : ndarray
+        Suspension extension r = x2 - x1 [m], positive in rebound.
+    rdot_mps : ndarray
+        Its rate [m/s].
+    body_disp_m : ndarray
+        Body displacement x2 [m].
+    """
 
     sample_rate_hz: float
     band_hz: tuple[float, float]
@@ -48,6 +64,7 @@ class SuspensionMotion:
 
     @property
     def n(self) -> int:
+        """Number of samples."""
         return int(self.r_m.size)
 
 
@@ -67,6 +84,12 @@ def suspension_motion(wheel_mps2: np.ndarray, body_mps2: np.ndarray, sample_rate
     output_rate_hz : float or None
         Resample to about this rate (default: 6 x the upper band edge with its taper, at
         most the input rate).
+
+    Returns
+    -------
+    SuspensionMotion
+        Band-limited body acceleration [m/s^2], extension r = x2 - x1 [m] (positive in
+        rebound), its rate [m/s] and body displacement [m].
     """
     lo, hi = band_hz
     if output_rate_hz is None:
@@ -89,6 +112,20 @@ def motion_noise_covariance(band_hz: tuple[float, float], noise_x: float, noise_
     ``noise_x``, ``noise_y``: one-sided densities of the wheel and body noise
     [(m/s^2)^2/Hz]. Each quantity is a filter (band window W, ``1/(jw)``, ``-1/w^2``) of
     ``n2`` or ``n2 - n1``; the covariance is ``int Re(g_i conj(g_j)) N df``.
+
+    Parameters
+    ----------
+    band_hz : (float, float)
+        Integration band [Hz] (tapered as in :func:`suspension_motion`).
+    noise_x, noise_y : float
+        Wheel and body noise densities [(m/s^2)^2/Hz].
+    n_grid : int
+        Frequency points of the integral.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(4, 4)`` covariance in the units of [m/s^2, m, m/s, m].
     """
     lo, hi = band_hz
     f = np.linspace(lo * (1 - TAPER), hi * (1 + TAPER), n_grid)
@@ -108,7 +145,25 @@ def motion_noise_covariance(band_hz: tuple[float, float], noise_x: float, noise_
 def travel_band(spectra: CrossSpectra, noise_x: float, noise_y: float,
                 band_hz: tuple[float, float], *, snr_min: float = 10.0) -> tuple[float, float]:
     """Raise the lower edge of ``band_hz`` until the suspension travel is ``snr_min`` above
-    noise (``|A2 - A1|^2`` against ``Nx + Ny``, smoothed over lines)."""
+    noise (``|A2 - A1|^2`` against ``Nx + Ny``, smoothed over lines).
+
+    Parameters
+    ----------
+    spectra : CrossSpectra
+        Wheel (x) and body (y) acceleration spectra.
+    noise_x, noise_y : float
+        Wheel and body noise densities [(m/s^2)^2/Hz].
+    band_hz : (float, float)
+        The analysis band [Hz].
+    snr_min : float
+        Power ratio of travel over noise required at the lower edge.
+
+    Returns
+    -------
+    (float, float)
+        ``(low_hz, band_hz[1])`` with ``low_hz`` at most half the upper edge; ``band_hz``
+        unchanged when no line qualifies.
+    """
     g_rr = np.maximum(spectra.gxx + spectra.gyy - 2 * spectra.gxy.real, 0.0)
     try:
         lo, _ = choose_integration_band(spectra.freq_hz, g_rr, noise_x + noise_y,
@@ -178,6 +233,7 @@ def restoring_force_surface(
     Parameters
     ----------
     motion : SuspensionMotion
+        r [m], rdot [m/s], body acceleration [m/s^2] and displacement [m] of one session.
     label : str
         Which session (``before``, ``after``).
     noise_cov : ndarray or None
@@ -190,6 +246,12 @@ def restoring_force_surface(
         Bins per axis over the 1st-99th percentile of r and rdot.
     min_count : int
         Bins with fewer samples are left empty (None).
+
+    Returns
+    -------
+    RestoringForceSurface
+        Mean ``-a2 - k3 x2`` per bin [m/s^2 = N/kg], the plane's slopes per unit mass
+        [1/s^2, 1/s] and, with ``mass_kg``, stiffness [N/m] and damping [N s/m].
     """
     force = -motion.body_acc_mps2 - coupling_per_mass * motion.body_disp_m
     r, rd = motion.r_m, motion.rdot_mps
@@ -238,6 +300,31 @@ def hysteresis_loops(
     stretch of ``n_cycles`` periods with the largest travel is kept. For a linear
     suspension, force against r is an ellipse whose area shows the damping, force against
     rdot one whose area shows the stiffness.
+
+    Parameters
+    ----------
+    motion : SuspensionMotion
+        One session's motion.
+    freqs_hz : sequence of float
+        Centre frequencies [Hz]; those whose band reaches 0 or 0.45 x the sample rate, or
+        whose window does not fit the record, are skipped.
+    label : str
+        Which session (``before``, ``after``).
+    coupling_per_mass : float
+        K3/(M2 + dM) [1/s^2], subtracted as ``- k3 x2`` from the force.
+    mass_kg : float or None
+        Body mass in this session [kg], stored with each loop.
+    rel_bandwidth : float
+        Relative width of the band-pass.
+    n_cycles : float
+        Periods per loop.
+    max_points : int
+        Points per loop at most (decimated).
+
+    Returns
+    -------
+    list of HysteresisLoop
+        r [m], rdot [m/s] and force per unit mass [m/s^2] per loop.
     """
     fs = motion.sample_rate_hz
     force = -motion.body_acc_mps2 - coupling_per_mass * motion.body_disp_m

@@ -119,23 +119,57 @@ class Estimate(_Serialisable):
 
 @dataclass
 class ComplexSeries(_Serialisable):
-    """A complex array as two lists."""
+    """A complex array as two lists.
+
+    Parameters
+    ----------
+    re, im : list of float
+        Real and imaginary parts (unit of the array).
+    """
 
     re: list[float]
     im: list[float]
 
     @classmethod
     def of(cls, z: np.ndarray) -> ComplexSeries:
+        """From a complex array.
+
+        Parameters
+        ----------
+        z : array_like
+            Complex values.
+
+        Returns
+        -------
+        ComplexSeries
+        """
         z = np.asarray(z, dtype=complex)
         return cls([float(v) for v in z.real], [float(v) for v in z.imag])
 
     def array(self) -> np.ndarray:
+        """The complex array back.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``re + 1j * im``.
+        """
         return np.asarray(self.re, float) + 1j * np.asarray(self.im, float)
 
 
 @dataclass
 class Band(_Serialisable):
-    """Frequency band of the identification and why it was chosen."""
+    """Frequency band of the identification and why it was chosen.
+
+    Parameters
+    ----------
+    low_hz, high_hz : float
+        Band edges [Hz].
+    source : str
+        ``"data"`` (chosen from the coherence) or ``"user"``.
+    note : str
+        How it was chosen.
+    """
 
     low_hz: float
     high_hz: float
@@ -145,7 +179,19 @@ class Band(_Serialisable):
 
 @dataclass
 class NoiseResult(_Serialisable):
-    """Sensor noise floors of one session (white, one-sided densities)."""
+    """Sensor noise floors of one session (white, one-sided densities).
+
+    Parameters
+    ----------
+    wheel_psd_per_hz, body_psd_per_hz : float
+        Noise densities of the wheel and body accelerometers [(m/s^2)^2/Hz].
+    wheel_rms_mps2, body_rms_mps2 : float
+        The same as RMS over the full band up to Nyquist [m/s^2].
+    wheel_plateau_found, body_plateau_found : bool
+        A flat noise plateau was found at high frequency (else the floor is a bound).
+    notes : list of str
+        Remarks on the estimate.
+    """
 
     wheel_psd_per_hz: float
     body_psd_per_hz: float
@@ -158,7 +204,15 @@ class NoiseResult(_Serialisable):
 
 @dataclass
 class Peak(_Serialisable):
-    """A resonance peak of a transmissibility magnitude."""
+    """A resonance peak of a transmissibility magnitude.
+
+    Parameters
+    ----------
+    freq_hz : float
+        Frequency [Hz].
+    magnitude : float
+        Magnitude at the peak (|T| dimensionless, or the spectrum's unit).
+    """
 
     freq_hz: float
     magnitude: float
@@ -166,7 +220,33 @@ class Peak(_Serialisable):
 
 @dataclass
 class TransmissibilityResult(_Serialisable):
-    """Body/wheel transmissibility of one session, with the fitted model on the same lines."""
+    """Body/wheel transmissibility of one session, with the fitted model on the same lines.
+
+    Parameters
+    ----------
+    label : str
+        ``before`` or ``after``.
+    added_mass_kg : float
+        Mass added on the body in this session [kg].
+    freq_hz : list of float
+        Display frequencies [Hz].
+    h1, h2, hv : ComplexSeries
+        The H1, H2 and H-v estimates of T = A2/A1 (dimensionless).
+    coherence : list of float
+        Coherence of the wheel and body accelerations.
+    model : ComplexSeries
+        The fitted linear model's T.
+    peaks : list of Peak
+        Resonance peaks of |H-v| in the band.
+    mean_coherence_in_band : float
+        Mean coherence over the analysis band.
+    n_averages : int
+        Welch segments averaged.
+    segment_s : float
+        Welch segment length [s].
+    noise : NoiseResult
+        The session's sensor noise floors.
+    """
 
     label: str
     added_mass_kg: float
@@ -192,6 +272,8 @@ class RestoringForceSurface(_Serialisable):
     fell. ``stiffness_per_mass`` [N/m/kg = 1/s^2] and ``damping_per_mass`` [1/s] are the
     slopes of a plane fitted to the samples (noise-compensated); multiplied by the mass
     (``mass_kg``, when known) they give ``stiffness_n_per_m`` and ``damping_ns_per_m``.
+    ``label`` names the session, ``band_hz`` the integration band [Hz] and ``counts`` the
+    samples per bin. r is the suspension extension, positive in rebound.
     """
 
     label: str
@@ -209,7 +291,23 @@ class RestoringForceSurface(_Serialisable):
 
 @dataclass
 class HysteresisLoop(_Serialisable):
-    """Restoring force against travel and rate, narrow-band around ``freq_hz``."""
+    """Restoring force against travel and rate, narrow-band around ``freq_hz``.
+
+    Parameters
+    ----------
+    label : str
+        ``before`` or ``after``.
+    freq_hz : float
+        Centre frequency [Hz].
+    band_hz : list of float
+        Band-pass edges [Hz].
+    r_m, rdot_mps : list of float
+        Suspension extension [m] (positive in rebound) and its rate [m/s].
+    force_per_mass_mps2 : list of float
+        Restoring force per unit mass ``-a2 - (K3/M) x2`` [m/s^2 = N/kg].
+    mass_kg : float or None
+        Body mass of the session [kg] (M2 + dM), when known.
+    """
 
     label: str
     freq_hz: float
@@ -222,7 +320,29 @@ class HysteresisLoop(_Serialisable):
 
 @dataclass
 class RouteResult(_Serialisable):
-    """The estimate of one route (``frequency`` or ``time``)."""
+    """The estimate of one route (``frequency`` or ``time``).
+
+    Parameters
+    ----------
+    name : str
+        ``frequency`` or ``time``.
+    sprung_mass_kg, suspension_stiffness_n_per_m : Estimate
+        M2 [kg] and K2 [N/m] with their std.
+    suspension_damping_ns_per_m, coupling_stiffness_n_per_m : Estimate
+        C2 [N s/m] and K3 [N/m] with their std.
+    body_natural_frequency_hz, damping_ratio : Estimate
+        Derived values [Hz], [-].
+    k3_included : bool
+        K3 was fitted.
+    n_residuals : int
+        Number of residuals.
+    cost : float
+        Final cost (dimensionless).
+    least_squares_std : dict of str to float
+        The asymptotic std by parameter name (SI), for comparison with the jackknife.
+    notes : list of str
+        Remarks.
+    """
 
     name: str
     sprung_mass_kg: Estimate
@@ -240,7 +360,21 @@ class RouteResult(_Serialisable):
 
 @dataclass
 class SessionSummary(_Serialisable):
-    """Which recording played which part."""
+    """Which recording played which part.
+
+    Parameters
+    ----------
+    label : str
+        ``before`` or ``after``.
+    path : str
+        Session file.
+    duration_s : float
+        Duration [s].
+    sample_rate_hz : float
+        Sample rate [Hz].
+    added_mass_kg : float
+        Mass added on the body [kg].
+    """
 
     label: str
     path: str
@@ -256,6 +390,44 @@ class IdentificationResult(_Serialisable):
 
     The headline estimates are those of the frequency route; ``routes`` holds both routes
     and ``route_agreement`` their difference in combined standard deviations.
+
+    Parameters
+    ----------
+    sprung_mass_kg, suspension_stiffness_n_per_m : Estimate
+        M2 [kg] and K2 [N/m] with their std (frequency route).
+    suspension_damping_ns_per_m, coupling_stiffness_n_per_m : Estimate
+        C2 [N s/m] and K3 [N/m] with their std.
+    body_natural_frequency_hz, damping_ratio : Estimate
+        Derived values [Hz], [-].
+    added_mass_kg : float
+        Mass added for the second drive [kg].
+    band_hz : Band
+        The analysis band.
+    coherence : dict of str to float
+        Mean coherence in the band per session label, and ``min_in_band``.
+    k3_included : bool
+        K3 was kept (significant, or asked for).
+    k3_test : dict of str to float
+        The fitted K3 ``value`` and ``std`` [N/m], their ratio ``z`` and the
+        ``cost_reduction`` it brings.
+    routes : dict of str to RouteResult
+        ``frequency`` and ``time``.
+    route_agreement : dict of str to float
+        Difference of the routes per parameter in combined std.
+    transmissibility : list of TransmissibilityResult
+        Per session.
+    restoring_force : list of RestoringForceSurface
+        Per session (empty without display data).
+    hysteresis : list of HysteresisLoop
+        Narrow-band loops.
+    warnings : list of str
+        What the technician should know.
+    sessions : list of SessionSummary
+        The two drives.
+    method : str
+        How the numbers were found, in words.
+    software_version : str
+        fielddiag version.
     """
 
     sprung_mass_kg: Estimate
@@ -280,7 +452,15 @@ class IdentificationResult(_Serialisable):
     software_version: str
 
     def summary(self) -> str:
-        """A readable multi-line summary."""
+        """A readable multi-line summary.
+
+        Returns
+        -------
+        str
+            The sessions, the band, the coherence, M2 [kg], K2 [N/m], C2 [N s/m], K3 [N/m],
+            the body natural frequency [Hz] and damping ratio with standard deviations, and the
+            checks and warnings.
+        """
         def line(label: str, e: Estimate, unit: str, spec: str = ".4g") -> str:
             rel = f"  ({100 * e.relative_std:.1f} %)" if e.value else ""
             return f"  {label:<26} {e.value:{spec}} +- {e.std:{spec}} {unit}{rel}"

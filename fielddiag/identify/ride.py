@@ -34,7 +34,21 @@ from fielddiag.identify.results import Peak, _Serialisable
 
 @dataclass
 class RideWindow(_Serialisable):
-    """One analysis window."""
+    """One analysis window.
+
+    Parameters
+    ----------
+    start_s : float
+        Start from the beginning of the drive [s].
+    speed_mps : float
+        Mean vehicle speed in the window [m/s] (NaN without a speed signal).
+    rms_mps2 : float
+        RMS body acceleration about its mean [m/s^2].
+    dominant_freq_hz : float
+        Frequency of the strongest spectral peak [Hz].
+    peaks : list of Peak
+        Spectral peaks (magnitude in [(m/s^2)^2/Hz]).
+    """
 
     start_s: float
     speed_mps: float
@@ -45,7 +59,21 @@ class RideWindow(_Serialisable):
 
 @dataclass
 class SpeedBinSpectrum(_Serialisable):
-    """Mean spectrum of the windows whose mean speed falls in a bin."""
+    """Mean spectrum of the windows whose mean speed falls in a bin.
+
+    Parameters
+    ----------
+    speed_low_mps, speed_high_mps : float
+        The speed bin [m/s].
+    n_windows : int
+        Windows averaged.
+    freq_hz : list of float
+        Frequencies [Hz].
+    psd_mps2_per_hz : list of float
+        Mean PSD of the body acceleration [(m/s^2)^2/Hz].
+    peaks : list of Peak
+        Its peaks.
+    """
 
     speed_low_mps: float
     speed_high_mps: float
@@ -62,6 +90,25 @@ class PeakTrack(_Serialisable):
     ``slope_hz_per_mps`` near 0 (``slope_std`` large in comparison) means a resonance of the
     car; a slope close to ``1 / (2 pi R)`` per harmonic means an excitation tied to wheel
     rotation (R the rolling radius).
+
+    Parameters
+    ----------
+    search_band_hz : list of float
+        Band searched in each window [Hz].
+    mean_freq_hz, freq_std_hz : float
+        Mean and std of the peak frequency over the windows [Hz].
+    slope_hz_per_mps, slope_std_hz_per_mps : float
+        Slope of the peak frequency against speed and its std [Hz per m/s].
+    correlation : float
+        Correlation of frequency with speed.
+    n_windows : int
+        Windows with the peak.
+    implied_rolling_radius_m : float or None
+        ``1 / (2 pi slope)`` [m] when the slope is significant and positive, else None.
+    window_freq_hz : list of float
+        The peak frequency in each window [Hz].
+    intercept_hz : float
+        Frequency of the regression line at zero speed [Hz].
     """
 
     search_band_hz: list[float]
@@ -78,7 +125,45 @@ class PeakTrack(_Serialisable):
 
 @dataclass
 class RideAnalysis(_Serialisable):
-    """Body-only analysis of one drive."""
+    """Body-only analysis of one drive.
+
+    Parameters
+    ----------
+    duration_s, sample_rate_hz : float
+        Duration [s] and (resampled) sample rate [Hz].
+    resampled : bool
+        The time stamps were irregular and the signal was resampled.
+    timing_jitter_fraction : float
+        std(dt) / median(dt) of the original time stamps.
+    freq_hz, psd_mps2_per_hz : list of float
+        Spectrum of the body acceleration [Hz], [(m/s^2)^2/Hz].
+    noise_psd_per_hz : float
+        Noise floor [(m/s^2)^2/Hz]; ``noise_floor_found`` says whether a plateau was seen.
+    noise_floor_found : bool
+        See above.
+    rms_mps2 : float
+        RMS body acceleration [m/s^2].
+    displacement_band_hz : list of float
+        Band above the noise in which displacement is integrated [Hz].
+    displacement_rms_m : float
+        RMS body displacement in that band [m].
+    peaks : list of Peak
+        Peaks of the whole-drive spectrum.
+    windows : list of RideWindow
+        Per analysis window.
+    speed_bins : list of SpeedBinSpectrum
+        Spectra per speed bin (empty without speed).
+    tracks : list of PeakTrack
+        Peaks regressed on speed.
+    spectrogram_time_s, spectrogram_freq_hz : list of float
+        Window centres [s] and frequencies [Hz] of the spectrogram.
+    spectrogram_db : list of list of float
+        ``10 log10`` of the PSD [dB re 1 (m/s^2)^2/Hz], one row per window.
+    speed_time_s, speed_mps : list of float
+        The speed signal [s], [m/s] (decimated; empty without speed).
+    notes : list of str
+        Remarks (resampling, missing noise floor).
+    """
 
     duration_s: float
     sample_rate_hz: float
@@ -107,6 +192,13 @@ def uniform_resample(time_s: np.ndarray, values: np.ndarray) -> tuple[np.ndarray
                                                                        float, float]:
     """Linear interpolation onto a grid at the median sample rate.
 
+    Parameters
+    ----------
+    time_s : ndarray
+        Sample times [s], increasing.
+    values : ndarray
+        Samples at those times (any unit).
+
     Returns
     -------
     (time_s, values, sample_rate_hz, jitter)
@@ -124,7 +216,26 @@ def uniform_resample(time_s: np.ndarray, values: np.ndarray) -> tuple[np.ndarray
 def displacement_band(freq_hz: np.ndarray, psd: np.ndarray, noise_psd_per_hz: float, *,
                       min_freq_hz: float, max_freq_hz: float, snr_min: float = 10.0
                       ) -> tuple[float, float]:
-    """From the first to the last line (smoothed over 5) at least ``snr_min`` above noise."""
+    """From the first to the last line (smoothed over 5) at least ``snr_min`` above noise.
+
+    Parameters
+    ----------
+    freq_hz : ndarray
+        Frequencies [Hz].
+    psd : ndarray
+        PSD of the signal (e.g. [(m/s^2)^2/Hz]).
+    noise_psd_per_hz : float
+        Noise floor in the same unit.
+    min_freq_hz, max_freq_hz : float
+        Lines considered [Hz].
+    snr_min : float
+        Power ratio over the noise a line needs.
+
+    Returns
+    -------
+    (float, float)
+        ``(low_hz, high_hz)``; NaN, NaN with fewer than two good lines.
+    """
     ps = np.convolve(psd, np.ones(5) / 5, mode="same")
     ok = (freq_hz >= min_freq_hz) & (freq_hz <= max_freq_hz) & (ps >= snr_min * noise_psd_per_hz)
     if ok.sum() < 2:

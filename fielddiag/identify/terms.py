@@ -55,6 +55,18 @@ TERMS = EFFECTS
 def make_term(name: str, **settings: float) -> Effect:
     """A term of a model from its public name (``"coulomb_friction"``) and optional settings.
 
+    Parameters
+    ----------
+    name : str
+        Registered effect or linear-term name.
+    **settings : float
+        Fit settings of the term (``width_m`` of the bump stop [m]).
+
+    Returns
+    -------
+    Effect
+        The term, without parameter values.
+
     Raises
     ------
     FieldDiagError

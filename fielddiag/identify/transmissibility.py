@@ -65,10 +65,20 @@ def coherence_noise_fit(
     estimated from ``n`` averages, ``(1 - coh)^2 / n``; residuals in Fisher z
     (``atanh(sqrt(coh))``, variance ``1/(2n)``).
 
+    Parameters
+    ----------
+    spectra : CrossSpectra
+        Wheel (x) and body (y) acceleration spectra.
+    band_hz : (float, float)
+        Lines used [Hz].
+    min_lines : int
+        Fewest lines needed.
+
     Returns
     -------
     (Nx, Ny) or None
-        None when fewer than ``min_lines`` lines lie in ``band_hz``.
+        Noise densities in the spectra's unit [(m/s^2)^2/Hz]; None when fewer than
+        ``min_lines`` lines lie in ``band_hz``.
     """
     f = spectra.freq_hz
     m = (f >= band_hz[0]) & (f <= band_hz[1]) & (spectra.gxx > 0) & (spectra.gyy > 0)
@@ -144,6 +154,18 @@ def hv_transmissibility(spectra: CrossSpectra, noise_x: float, noise_y: float) -
     ``lam = Ny/Nx``: ``H = (Gyy - lam Gxx + sqrt((Gyy - lam Gxx)^2 + 4 lam |Gxy|^2)) /
     (2 conj(Gxy))``. It tends to H2 when the wheel is the noisy channel (lam -> 0) and to
     H1 when the body is (lam -> inf); both limits are then unbiased.
+
+    Parameters
+    ----------
+    spectra : CrossSpectra
+        Wheel (x) and body (y) acceleration spectra.
+    noise_x, noise_y : float
+        Wheel and body noise densities [(m/s^2)^2/Hz]; ``noise_x <= 0`` gives H1.
+
+    Returns
+    -------
+    numpy.ndarray
+        Complex body/wheel transmissibility (dimensionless) per line.
     """
     gxx, gyy, gxy = spectra.gxx, spectra.gyy, spectra.gxy
     if noise_x <= 0:
@@ -156,7 +178,18 @@ def hv_transmissibility(spectra: CrossSpectra, noise_x: float, noise_y: float) -
 
 
 def debiased_coherence(spectra: CrossSpectra) -> np.ndarray:
-    """Coherence with the small-sample bias ``(1 - coh)^2 / n`` removed (clipped to [0, 1])."""
+    """Coherence with the small-sample bias ``(1 - coh)^2 / n`` removed (clipped to [0, 1]).
+
+    Parameters
+    ----------
+    spectra : CrossSpectra
+        Spectra with ``coherence`` and ``n_averages``.
+
+    Returns
+    -------
+    numpy.ndarray
+        Coherence per line (dimensionless).
+    """
     n_eff = max(spectra.n_averages * WELCH_EFFICIENCY, 1.0)
     c = spectra.coherence
     # invert c_hat = c + (1 - c)^2 / n for c (smaller root)
@@ -181,6 +214,19 @@ def choose_band(
     The smoothed, bias-corrected coherence of each session is taken; their minimum must
     stay above the threshold over a contiguous run of lines, which must contain
     ``anchor_hz`` (the body resonance) when given, else the best run is the longest.
+
+    Parameters
+    ----------
+    spectra : list of CrossSpectra
+        The sessions' spectra (same line spacing).
+    coherence_min : float
+        Threshold of the smoothed, debiased coherence.
+    min_freq_hz, max_freq_hz : float
+        Lines considered [Hz].
+    anchor_hz : float or None
+        Frequency the band must contain [Hz].
+    smooth_lines : int
+        Moving-average length over lines.
 
     Returns
     -------
@@ -225,6 +271,23 @@ def choose_band(
 
 def resonance_peaks(freq_hz: np.ndarray, transmissibility: np.ndarray,
                     band_hz: tuple[float, float], max_peaks: int = 4) -> list[tuple[float, float]]:
-    """Peaks of |T| inside the band, most prominent first: [(freq_hz, |T|)]."""
+    """Peaks of |T| inside the band, most prominent first: [(freq_hz, |T|)].
+
+    Parameters
+    ----------
+    freq_hz : ndarray
+        Frequencies [Hz].
+    transmissibility : ndarray
+        Complex (or real) T per line.
+    band_hz : (float, float)
+        Band searched [Hz].
+    max_peaks : int
+        Return at most this many.
+
+    Returns
+    -------
+    list of (float, float)
+        Frequency [Hz] and |T| (dimensionless) of each peak.
+    """
     return find_spectral_peaks(freq_hz, np.abs(transmissibility), max_peaks=max_peaks,
                                min_prominence=0.05, band_hz=band_hz)
