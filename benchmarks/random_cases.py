@@ -410,8 +410,10 @@ def case_drives(case: Case, drives: tuple[sim.SimulatedDrive, sim.SimulatedDrive
 
     before, after = simulate_case(case) if drives is None else drives
     name = f"random_{case.seed}"
-    return [Drive(label, name, d.sample_rate_hz, 0.0, d.wheel_accel_mps2, d.body_accel_mps2,
-                  d.added_mass_kg) for label, d in (("before", before), ("after", after))]
+    return [Drive(wheel_accel_mps2=d.wheel_accel_mps2, body_accel_mps2=d.body_accel_mps2,
+                  sample_rate_hz=d.sample_rate_hz, added_mass_kg=d.added_mass_kg, label=label,
+                  name=name, start_s=0.0)
+            for label, d in (("before", before), ("after", after))]
 
 
 def write_case(case: Case, folder: str | os.PathLike) -> tuple[Path, Path, Path]:
