@@ -64,6 +64,7 @@ class DataHypothesis:
 
     @property
     def z(self) -> float:
+        """|value| / std: how many standard deviations the estimate is from zero."""
         return abs(self.value) / self.std if self.std > 0 else np.inf
 
 
@@ -106,6 +107,18 @@ def shift_signal(x: np.ndarray, shift_samples: float) -> np.ndarray:
 
     By a linear phase in the frequency domain, after removing the mean and padding to
     twice the length so the ends do not wrap into each other.
+
+    Parameters
+    ----------
+    x : ndarray
+        Uniformly sampled signal.
+    shift_samples : float
+        Advance in samples (negative: delay).
+
+    Returns
+    -------
+    ndarray
+        Same length and mean as ``x``.
     """
     x = np.asarray(x, float)
     mean = float(np.mean(x))
@@ -119,8 +132,17 @@ def correct_drives(drives: list[Any], hyp: DataHypothesis) -> list[Any]:
     """The drives with the data problem undone (a gain divided out of the second drive's
     body channel, or the body channel moved back by the delay).
 
-    ``drives`` are :class:`fielddiag.diagnose.engine.Drive`-like dataclasses with
-    ``body_accel_mps2`` and ``sample_rate_hz``.
+    Parameters
+    ----------
+    drives : list
+        :class:`fielddiag.drive.CornerDrive`-like dataclasses with ``body_accel_mps2``
+        [m/s^2] and ``sample_rate_hz``; the last is the drive with the added mass.
+    hyp : DataHypothesis
+
+    Returns
+    -------
+    list
+        New drives (the inputs are not changed).
     """
     if hyp.kind == GAIN_CHANGE:
         last = drives[-1]
@@ -134,7 +156,18 @@ def correct_drives(drives: list[Any], hyp: DataHypothesis) -> list[Any]:
 
 
 def residual_scale(hyp: DataHypothesis, index: int, n_drives: int) -> float:
-    """Factor from a corrected drive's residual to the recording's units."""
+    """Factor from a corrected drive's residual to the recording's units.
+
+    Parameters
+    ----------
+    hyp : DataHypothesis
+    index, n_drives : int
+        Which drive of how many (the gain acts on the last).
+
+    Returns
+    -------
+    float
+    """
     if hyp.kind == GAIN_CHANGE and index == n_drives - 1:
         return 1.0 + hyp.value
     return 1.0
@@ -148,7 +181,19 @@ _MOVED = {
 
 
 def moved_text(uncorrected: dict[str, float], corrected: dict[str, float]) -> str:
-    """``"; correcting it moves the sprung mass from 380 to 392 kg (+3.2 %), ..."``."""
+    """``"; correcting it moves the sprung mass from 380 to 392 kg (+3.2 %), ..."``.
+
+    Parameters
+    ----------
+    uncorrected, corrected : dict
+        Linear values (``sprung_mass_kg``, ``suspension_stiffness_n_per_m``,
+        ``suspension_damping_ns_per_m``) fitted to the drives as recorded and corrected.
+
+    Returns
+    -------
+    str
+        Empty when no value can be compared.
+    """
     parts = []
     for key, (label, unit) in _MOVED.items():
         a, b = uncorrected.get(key), corrected.get(key)

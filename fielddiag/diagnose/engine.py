@@ -428,7 +428,15 @@ class Diagnosis:
         return "missing_physics" if missing else "adequate"
 
     def data_problems(self) -> list[data_checks.DataWarning]:
-        """The data hypotheses the held-out comparison chose, as warnings with sizes."""
+        """The data hypotheses the held-out comparison chose, as warnings with sizes.
+
+        Returns
+        -------
+        list of DataWarning
+            ``sensor_gain_changed`` or ``channel_time_offset`` with the value (gain - 1,
+            or the body channel's delay [s]), its std and how correcting it moved M/K/C;
+            empty when no data problem was chosen.
+        """
         hyp = self.chosen.data
         if hyp is None:
             return []
@@ -461,7 +469,22 @@ class Diagnosis:
         }
 
     def plot_data(self, max_points: int = 1500) -> dict:
-        """Compact arrays for a dashboard: held-out fits, residual spectrum, departure map."""
+        """Compact arrays for a dashboard: held-out fits, residual spectrum, departure map.
+
+        Parameters
+        ----------
+        max_points : int
+            At most this many samples per held-out trace (every k-th sample kept).
+
+        Returns
+        -------
+        dict
+            ``fit``: per drive ``session``, ``time_s``, ``recorded``, ``simulated_linear``,
+            ``simulated_augmented`` (body acceleration [m/s^2], in the band);
+            ``residual_psd``: ``freq_hz``, ``psd``, ``noise_psd``; ``departure_map``:
+            bin edges in ``r`` [m] and ``rdot`` [m/s], mean force departure [N] and
+            counts, or None.
+        """
         fits = []
         aug_runs = {r[0].name: r for r in self.chosen.runs}
         for sf, measured, residual, t in self.baseline.runs:
@@ -498,6 +521,13 @@ class Diagnosis:
         }
 
     def to_dict(self) -> dict:
+        """The JSON of ``fielddiag diagnose`` (keys in docs/diagnosis.md).
+
+        Returns
+        -------
+        dict
+            Plain JSON-serialisable values, SI units in the key names.
+        """
         base, chosen = self.baseline.candidate, self.chosen.candidate
         findings = [self._finding(e) for e in self.chosen.physics]
         if self.unexplained is not None:
@@ -601,7 +631,23 @@ def explain(
     mode: str,
 ) -> str:
     """A sentence a technician can act on (the effect's own words, see
-    :meth:`fielddiag.effects.base.Effect.explain`)."""
+    :meth:`fielddiag.effects.base.Effect.explain`).
+
+    Parameters
+    ----------
+    effect : str
+        Effect name of the library.
+    params : dict
+        Its fitted physical parameters (``_per_kg`` names in single-drive mode).
+    base, chosen : dict
+        Values of the linear fit and of the chosen model (to say what the linear fit was
+        hiding); an empty ``base`` says nothing about it.
+    mode : {"pair", "single"}
+
+    Returns
+    -------
+    str
+    """
     per = "" if mode == "pair" else " per kg of sprung mass"
     cls = EFFECTS.get(effect)
     if cls is None:
@@ -897,6 +943,11 @@ def known_model_nrmse(
         Start values by parameter key (``body_mass_kg`` included in pair mode).
     coupling : bool
         Include the coupling spring.
+
+    Returns
+    -------
+    float
+        Held-out NRMSE of the body acceleration (0 = perfect, 1 = no better than zero).
     """
     drives = list(drives)
     band, rate = _band_and_rate(drives, band_hz, holdout_fraction, analysis_rate_hz)
@@ -935,6 +986,16 @@ def diagnose_drives(
         Grey-box fits of candidates: every single effect, then pairs of the useful ones.
     progress : callable or None
         Called with a line of text at each step.
+
+    Returns
+    -------
+    Diagnosis
+        The chosen model, its evidence and the data problems; ``to_dict()`` is the JSON.
+
+    Raises
+    ------
+    FieldDiagError
+        Not one or two drives, or two drives with the same added mass.
     """
     say = progress or (lambda _msg: None)
     drives = list(drives)
@@ -1304,8 +1365,27 @@ def diagnose_sessions(
 ) -> Diagnosis:
     """Diagnose one session or a before/after pair of session files.
 
-    ``added_mass_kg`` is the mass added for the second drive; None reads it from the
-    sessions' ``added_mass_kg`` attributes.
+    Parameters
+    ----------
+    paths : sequence of path
+        One session, or the before and after sessions of a pair.
+    added_mass_kg : float or None
+        Mass added for the second drive [kg]; None reads it from the sessions'
+        ``added_mass_kg`` attributes.
+    progress : callable or None
+        Called with a line of text at each step.
+    **kw
+        Passed to :func:`diagnose_drives`.
+
+    Returns
+    -------
+    Diagnosis
+
+    Raises
+    ------
+    FieldDiagError
+        A missing channel, gaps, or a pair that is not one (see
+        :func:`fielddiag.pairs.check_pair_files`).
     """
     paths = [Path(p) for p in paths]
     if len(paths) == 1:
