@@ -10,6 +10,17 @@ linear damper ``-c rdot`` and the candidate effects), ``m`` the moving mass and 
 preload or load-cell offset. The model is linear in every parameter but a bump stop's
 gap, so fits are quick; held-out data (the last part of the recording) decide which
 effects are real, with the rule of :mod:`fielddiag.diagnose.selection`.
+
+The band is read from the data (:mod:`fielddiag.diagnose.rig_band`): the displacement's
+signal-to-noise and the force/displacement coherence give the highest frequency the
+motion carries, and one zero-phase low-pass (or none, when the signal fills the band to
+Nyquist) acts alike on both sides of the force equation. The motion is filtered and
+differentiated spectrally (exact at any sample-rate/resonance ratio); the *residual*
+``force - model(motion)`` is filtered by the same filter, so whatever the filter takes out
+of the measured force (the harmonics of a friction step or of a cubic spring above the
+cut-off) it takes out of the model's force too, and no parameter is biased by it. The
+moving mass ``m`` stays in the model when the data show inertia (significant, and at
+least 1 % of the force, as on any rig with a resonance); otherwise it is fixed at zero.
 """
 
 from __future__ import annotations
@@ -19,10 +30,11 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import optimize, signal
+from scipy import optimize
 
 from fielddiag.blas import single_threaded_blas
 from fielddiag.diagnose.locate import departure_map
+from fielddiag.diagnose.rig_band import RigBand, choose_rig_band, lowpass, zero_phase
 from fielddiag.diagnose.selection import (
     CandidateFit,
     Selection,
@@ -35,11 +47,31 @@ from fielddiag.identify.terms import ForceModel, make_term, split_shape
 
 #: Effect terms tried by default, in the diagnosis library's names.
 RIG_EFFECTS = ("coulomb_friction", "cubic_stiffness", "bump_stop", "asymmetric_damping")
+#: The moving mass is kept when its force is at least this share of the force's spread.
+MIN_INERTIA_SHARE = 0.01
 
 
 @dataclass(frozen=True)
 class RigData:
-    """Synchronous rig samples on a uniform time base (SI or the units recorded)."""
+    """Synchronous rig samples on a uniform time base (SI or the units recorded).
+
+    Attributes
+    ----------
+    sample_rate_hz : float
+        Sample rate [Hz].
+    time_s : numpy.ndarray
+        Sample times [s].
+    force : numpy.ndarray
+        Measured force through the band's filter, over this record (or part).
+    displacement, velocity, acceleration : numpy.ndarray
+        Motion through the same filter, the rates spectral derivatives.
+    force_unit, displacement_unit : str
+        Units as recorded.
+    force_raw : numpy.ndarray or None
+        Measured force as recorded (None: ``force`` is unfiltered).
+    band : RigBand or None
+        The analysis band and why it was chosen (None: no filter, nothing chosen).
+    """
 
     sample_rate_hz: float
     time_s: np.ndarray
@@ -49,28 +81,54 @@ class RigData:
     acceleration: np.ndarray
     force_unit: str = "N"
     displacement_unit: str = "m"
+    force_raw: np.ndarray | None = None
+    band: RigBand | None = None
+
+    @property
+    def cutoff_hz(self) -> float | None:
+        """The low-pass acting on both sides of the force equation (None: no filter)."""
+        return None if self.band is None else self.band.cutoff_hz
+
+    def lowpass(self, x: np.ndarray) -> np.ndarray:
+        """``x`` (samples of this record, or columns of them) through the band's filter."""
+        return lowpass(x, self.sample_rate_hz, self.cutoff_hz)
 
     def part(self, start: int, stop: int) -> RigData:
+        """Samples ``start:stop``; the force is filtered again over the part alone, as the
+        fit filters its residual there (the same filter on both sides, same ends)."""
         sl = slice(start, stop)
+        raw = None if self.force_raw is None else self.force_raw[sl]
+        force = self.force[sl] if raw is None else self._part_force(raw)
         return RigData(
             self.sample_rate_hz,
             self.time_s[sl],
-            self.force[sl],
+            force,
             self.displacement[sl],
             self.velocity[sl],
             self.acceleration[sl],
             self.force_unit,
             self.displacement_unit,
+            raw,
+            self.band,
         )
+
+    def _part_force(self, raw: np.ndarray) -> np.ndarray:
+        return self.lowpass(raw)
+
+    @property
+    def measured_force(self) -> np.ndarray:
+        """The force as recorded (before the band's filter)."""
+        return self.force if self.force_raw is None else self.force_raw
 
     @property
     def n(self) -> int:
         return int(self.force.size)
 
 
-def _lowpass(x: np.ndarray, fs: float, cutoff_hz: float) -> np.ndarray:
-    sos = signal.butter(4, cutoff_hz, fs=fs, output="sos")
-    return signal.sosfiltfilt(sos, x)
+def _edge_margin(sample_rate_hz: float, cutoff_hz: float | None, n: int) -> int:
+    """Samples dropped at each end of a record: the filter's settling near the ends."""
+    settle = 8 if cutoff_hz is None else int(np.ceil(2.0 * sample_rate_hz / cutoff_hz))
+    return int(min(max(settle, 8), n // 20))
 
 
 def rig_data_from_displacement(
@@ -83,22 +141,45 @@ def rig_data_from_displacement(
     force_unit: str = "N",
     displacement_unit: str = "m",
 ) -> RigData:
-    """Velocity and acceleration by differentiating the displacement.
+    """Rig samples from a measured force and displacement, in a band read from the data.
 
-    Only the displacement is low-passed (zero phase, ``cutoff_hz``, default a tenth of the
-    sample rate) to keep differentiation noise down; the force is left as measured, since
-    filtering it would smear the steps of dry friction or a bump stop that the model, fed
-    with the smooth motion, reproduces sharply (a 25 Hz filter biases a friction force
-    about 15 % low). The displacement keeps its absolute zero (a bump stop's gap is
-    measured from the rig's zero).
+    The band (:func:`fielddiag.diagnose.rig_band.choose_rig_band`) comes from the
+    displacement's signal-to-noise and the force/displacement coherence; the same
+    zero-phase low-pass (or none) then acts on the displacement, whose velocity and
+    acceleration are its exact spectral derivatives, and on the force. The fit filters its
+    residual with it too, so a friction step or a cubic spring's harmonics above the
+    cut-off leave the measured and the modelled force alike. The displacement keeps its
+    absolute zero (a bump stop's gap is measured from the rig's zero). A few samples at
+    each end, where the filter settles, are dropped.
+
+    Parameters
+    ----------
+    time_s, force, displacement : array_like
+        Samples on a uniform time base.
+    sample_rate_hz : float
+        Sample rate [Hz].
+    cutoff_hz : float or None
+        Force a cut-off [Hz] instead of choosing one (``inf``: no filter).
+    force_unit, displacement_unit : str
+        Units as recorded.
+
+    Returns
+    -------
+    RigData
     """
     fs = float(sample_rate_hz)
-    fc = cutoff_hz or 0.1 * fs
-    x = _lowpass(np.asarray(displacement, float), fs, fc)
     f = np.asarray(force, float)
-    v = np.gradient(x, 1.0 / fs)
-    a = np.gradient(v, 1.0 / fs)
-    return RigData(fs, np.asarray(time_s, float), f, x, v, a, force_unit, displacement_unit)
+    x_raw = np.asarray(displacement, float)
+    band = choose_rig_band(f, x_raw, fs)
+    if cutoff_hz is not None:
+        given = None if not np.isfinite(cutoff_hz) or cutoff_hz >= fs / 2 else float(cutoff_hz)
+        band = RigBand(given, band.motion_edge_hz, band.snr_edge_hz, band.coherent_band_hz,
+                       band.resonance_hz, fs, f"cut-off given: {given or 'none'}")
+    x, v, a = zero_phase(lowpass(x_raw, fs, band.cutoff_hz), fs, None, (0, 1, 2))
+    data = RigData(fs, np.asarray(time_s, float), f, x, v, a, force_unit,
+                   displacement_unit, f, band)
+    k = _edge_margin(fs, band.cutoff_hz, data.n)
+    return data.part(k, data.n - k)
 
 
 def rig_data_from_acceleration(
@@ -140,15 +221,20 @@ def _model_for(effects: Sequence[str]) -> ForceModel:
 
 
 def _residual_and_jac(model: ForceModel, z: np.ndarray, data: RigData):
+    """Residual ``force - (F0 + m a - F)`` and its Jacobian in ``z``, both through the
+    band's filter (the measured force went through it; the model's force goes too)."""
     f0, m, theta = z[0], z[1], z[2:]
     zeros = np.zeros_like(data.displacement)
     fm, _, dth = model.force(data.displacement, data.velocity, zeros, theta)
-    pred = f0 + m * data.acceleration - fm
-    res = data.force - pred
+    pred_raw = m * data.acceleration - fm
     jac = np.empty((data.n, z.size))
     jac[:, 0] = -1.0
     jac[:, 1] = -data.acceleration
     jac[:, 2:] = dth
+    if data.cutoff_hz is not None:
+        filt = data.lowpass(np.column_stack([pred_raw, jac[:, 1:]]))
+        pred_raw, jac[:, 1:] = filt[:, 0], filt[:, 1:]
+    res = data.force - f0 - pred_raw
     return res, jac
 
 
@@ -190,37 +276,113 @@ def _inside(z0: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
 
 
 def fit_rig_model(
-    effects: Sequence[str], data: RigData, linear: dict[str, float] | None = None
+    effects: Sequence[str],
+    data: RigData,
+    linear: dict[str, float] | None = None,
+    *,
+    fit_mass: bool = True,
 ) -> tuple[ForceModel, np.ndarray, np.ndarray, float]:
     """Least-squares fit of ``F0, m`` and the model's parameters to the force.
 
-    Returns (model, z, covariance, residual variance); ``z = [F0, m, theta...]``.
+    Parameters
+    ----------
+    effects : sequence of str
+        Effects added to the linear spring and damper.
+    data : RigData
+        The samples to fit (the residual is filtered by ``data``'s band).
+    linear : dict or None
+        Start values by parameter key (``f0``, ``m`` and the model's keys).
+    fit_mass : bool
+        Fit the moving mass; False fixes it at zero (no inertia in the data).
+
+    Returns
+    -------
+    model : ForceModel
+    z : numpy.ndarray
+        ``[F0, m, theta...]``.
+    covariance : numpy.ndarray
+        Of ``z`` (zero row and column for a fixed mass).
+    residual_variance : float
     """
     model = _model_for(effects)
     lower = np.concatenate(([-np.inf, 0.0], model.lower))
     upper = np.concatenate(([np.inf, np.inf], model.upper))
-    linear = linear or {}
-    best = None
-    for z0 in _start_values(model, data, linear):
+    # variable projection: the force is proportional to each force-scaled parameter of a
+    # memoryless term (ParamSpec.scales_with_force), so linear in F0, m and those; only
+    # the rest (a bump stop's gap, friction's smoothing velocity) is searched, the linear
+    # ones solved by bounded least squares at every step of that search
+    lin_terms = {t.name for t in model.terms if t.n_states == 0}
+    linear_mask = np.concatenate(([True, True], [
+        spec.scales_with_force and term in lin_terms
+        for term, spec in zip(model.param_terms, model.specs, strict=True)
+    ]))
+    free = np.ones(lower.size, bool)
+    free[1] = fit_mass
+    lin = linear_mask & free
+    nonlin = ~linear_mask & free
+    starts = [z0 for z0 in _start_values(model, data, linear or {})]
+
+    lin_idx = np.flatnonzero(lin)
+    term_of = np.array(["", "", *model.param_terms])
+    moving = np.isin(term_of[lin_idx], sorted({term_of[i] for i in np.flatnonzero(nonlin)}))
+    base: dict[str, np.ndarray] = {}
+
+    def solve_linear(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Best linear parameters for the nonlinear ones in ``z``; (z, filtered residual).
+
+        With every force-scaled parameter at zero the model's force is zero, so the
+        residual is the filtered force and the filtered Jacobian columns are the basis;
+        only the columns of terms with a nonlinear parameter change between calls."""
+        z = z.copy()
+        z[lin] = 0.0
+        if "a" not in base:
+            _, jac = _residual_and_jac(model, z, data)
+            base["a"] = -jac[:, lin_idx]
+        elif moving.any():
+            zeros = np.zeros_like(data.displacement)
+            _, _, dth = model.force(data.displacement, data.velocity, zeros, z[2:])
+            cols = dth[:, lin_idx[moving] - 2]
+            base["a"][:, moving] = -data.lowpass(cols)
+        a = base["a"]
+        scale = np.sqrt(np.sum(a * a, axis=0))
+        scale[scale == 0] = 1.0
+        sol = optimize.lsq_linear(a / scale, data.force, bounds=(lower[lin] * scale,
+                                                                 upper[lin] * scale),
+                                  method="bvls")
+        z[lin] = sol.x / scale
+        return z, data.force - (a / scale) @ sol.x
+
+    best_z, best_cost = None, np.inf
+    for z0 in starts:
         z0 = _inside(z0, lower, upper)
-        sol = optimize.least_squares(
-            lambda z: _residual_and_jac(model, z, data)[0],
-            z0,
-            jac=lambda z: _residual_and_jac(model, z, data)[1],
-            bounds=(lower, upper),
-            x_scale="jac",
-            method="trf",
-        )
-        if best is None or sol.cost < best.cost:
-            best = sol
-    res, jac = _residual_and_jac(model, best.x, data)
-    dof = max(data.n - best.x.size, 1)
+        z0[~free] = 0.0
+        if nonlin.any():
+            def reduced(q: np.ndarray, z0=z0) -> np.ndarray:
+                zz = z0.copy()
+                zz[nonlin] = q
+                return solve_linear(zz)[1]
+
+            sol = optimize.least_squares(reduced, z0[nonlin], bounds=(lower[nonlin],
+                                         upper[nonlin]), x_scale=np.abs(z0[nonlin]) + 1e-6,
+                                         method="trf", diff_step=1e-3, max_nfev=25,
+                                         xtol=1e-4, ftol=1e-6)
+            z0 = z0.copy()
+            z0[nonlin] = sol.x
+        z, res = solve_linear(z0)
+        cost = float(res @ res)
+        if cost < best_cost:
+            best_z, best_cost = z, cost
+    z = best_z
+    res, jac = _residual_and_jac(model, z, data)
+    jac = jac[:, free]
+    dof = max(data.n - int(free.sum()), 1)
     s2 = float(res @ res) / dof
+    cov = np.zeros((z.size, z.size))
     try:
-        cov = np.linalg.pinv(jac.T @ jac) * s2
+        cov[np.ix_(free, free)] = np.linalg.pinv(jac.T @ jac) * s2
     except np.linalg.LinAlgError:
-        cov = np.full((best.x.size, best.x.size), np.nan)
-    return model, best.x, cov, s2
+        cov[np.ix_(free, free)] = np.nan
+    return model, z, cov, s2
 
 
 def _named(model: ForceModel, z: np.ndarray) -> dict[str, float]:
@@ -254,9 +416,13 @@ def _at_bound(
 
 
 def _candidate(
-    effects: Sequence[str], fit: RigData, val: RigData, linear: dict[str, float]
+    effects: Sequence[str],
+    fit: RigData,
+    val: RigData,
+    linear: dict[str, float],
+    fit_mass: bool = True,
 ) -> CandidateFit:
-    model, z, cov, _ = fit_rig_model(effects, fit, linear)
+    model, z, cov, _ = fit_rig_model(effects, fit, linear, fit_mass=fit_mass)
     std = np.sqrt(np.clip(np.diag(cov), 0, None))
     res_fit, _ = _residual_and_jac(model, z, fit)
     res_val, _ = _residual_and_jac(model, z, val)
@@ -283,6 +449,7 @@ class RigDiagnosis:
     data: RigData
     split_index: int
     unexplained: dict | None
+    inertia_kept: bool = True
 
     def to_dict(self) -> dict:
         sel = self.selection
@@ -349,8 +516,21 @@ class RigDiagnosis:
                 for c, cmp in sel.ranking
             ],
             "validation": {"split_time_s": float(self.data.time_s[self.split_index])},
+            "band": self._band(),
             "warnings": [],
         }
+
+    def _band(self) -> dict:
+        band = self.data.band
+        out = band.to_dict() if band is not None else {"filter": "none", "cutoff_hz": None,
+                                                       "reason": "samples given as is"}
+        out["inertia_kept"] = self.inertia_kept
+        out["inertia"] = (
+            "the moving mass is in the model (inertia shows in the force)"
+            if self.inertia_kept
+            else "no inertia in the force at these frequencies: the moving mass is fixed at 0"
+        )
+        return out
 
     def _region(self, cand: CandidateFit) -> dict | None:
         base = self.selection.baseline
@@ -449,15 +629,40 @@ def diagnose_rig(
     split = int(round(data.n * (1 - holdout_fraction)))
     fit, val = data.part(0, split), data.part(split, data.n)
     baseline = _candidate((), fit, val, {})
+    fit_mass = inertia_shown(baseline, fit)
+    if not fit_mass:
+        baseline = _candidate((), fit, val, {}, fit_mass=False)
     linear = {k: v for k, v in baseline.values.items()}
     linear["f0"], linear["m"] = baseline.values["preload_n"], baseline.values["moving_mass_kg"]
     combos: list[tuple[str, ...]] = [(e,) for e in effects]
     if max_pair:
         combos += [c for c in itertools.combinations(effects, 2)]
-    candidates = [_candidate(c, fit, val, linear) for c in combos]
+    candidates = [_candidate(c, fit, val, linear, fit_mass) for c in combos]
     sel = select_model(baseline, candidates)
     unexplained = _unexplained_structure(baseline, sel.chosen, fit, val)
-    return RigDiagnosis(sel, data, split, unexplained)
+    return RigDiagnosis(sel, data, split, unexplained, fit_mass)
+
+
+def inertia_shown(baseline: CandidateFit, fit: RigData) -> bool:
+    """Do the data show the moving mass? Its estimate (linear model with mass) must be
+    at least 3 standard deviations above zero and its force ``m a`` at least
+    :data:`MIN_INERTIA_SHARE` of the force's spread, as on a rig with a resonance.
+
+    Parameters
+    ----------
+    baseline : CandidateFit
+        The linear model fitted with the mass free.
+    fit : RigData
+        The fitted samples.
+
+    Returns
+    -------
+    bool
+    """
+    m = baseline.values["moving_mass_kg"]
+    sd = baseline.std.get("moving_mass_kg", np.inf)
+    share = m * float(np.std(fit.acceleration)) / max(float(np.std(fit.force)), 1e-300)
+    return bool(m > 3.0 * sd and share >= MIN_INERTIA_SHARE)
 
 
 def rig_data_from_session(reader) -> RigData:
