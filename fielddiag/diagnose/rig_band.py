@@ -7,12 +7,14 @@ The band is read from the data, never fixed to the sample rate:
   fifth of the spectrum) gives the highest frequency where the motion stands at least
   10 dB above noise;
 * the force/displacement coherence gives the band where the two are related (and, with
-  enough averages, significantly so);
+  enough averages, significantly so); where it reaches 0.91 (``S/(S+N)`` at 10 dB) the
+  motion counts as signal too (a record whose spectrum has no flat noise floor);
 * the motion's upper edge is the higher of the two; the low-pass cut-off sits 1.5 times
   above it (the filter passes 97.5 % of the amplitude at the edge), and no filter is used
   when that is within 80 % of Nyquist (the signal fills the sampled band);
 * the resonance is read from the dynamic stiffness ``F/X = k - m w^2 + i c w`` fitted to
-  the coherent part of the frequency response.
+  the coherent part of the frequency response, and reported only where the measured
+  ``Re(F/X)`` turns from positive (spring) below it to negative (mass) above it.
 
 The filter (:func:`lowpass`) is a 4th-order Butterworth run forwards and backwards (zero
 phase); it acts on the force, on the displacement and on the model's force alike. The
@@ -222,7 +224,10 @@ def choose_rig_band(
     thr = max(COHERENCE_MIN, chance)
     related = np.flatnonzero((coh >= thr) & (freq > 0))
     coherent = (float(freq[related[0]]), float(freq[related[-1]])) if related.size else None
-    edge = max(snr_edge, coherent[1] if coherent else 0.0)
+    # the coherence that means 10 dB signal-to-noise: gamma^2 = S / (S + N)
+    strong = np.flatnonzero((coh >= max(SNR_MIN / (1.0 + SNR_MIN), thr)) & (freq > 0))
+    coh_edge = float(freq[strong[-1]]) if strong.size else 0.0
+    edge = max(snr_edge, coh_edge)
     resonance = _resonance(freq, pff, pfx, coh, thr, coherent)
     if edge <= 0.0:
         edge = 0.1 * fs
@@ -230,6 +235,7 @@ def choose_rig_band(
     else:
         why = (f"motion above noise (10 dB) up to {snr_edge:.3g} Hz"
                + (f", force/displacement coherent {coherent[0]:.3g}-{coherent[1]:.3g} Hz"
+                  f" (at 10 dB, coherence >= 0.91, up to {coh_edge:.3g} Hz)"
                   if coherent else ", no significant force/displacement coherence"))
     cutoff: float | None = CUTOFF_FACTOR * edge
     if cutoff >= NO_FILTER_FRACTION * nyq:
@@ -244,7 +250,8 @@ def choose_rig_band(
 
 def _resonance(freq, pff, pfx, coh, thr, coherent) -> float | None:
     """Resonance from ``F/X = k - m w^2 + i c w`` fitted to the coherent bins, if the
-    fitted mass and stiffness are positive and the resonance lies inside the band."""
+    fitted mass and stiffness are positive, the resonance lies inside the band and the
+    measured ``Re(F/X)`` changes sign across it."""
     if coherent is None:
         return None
     use = (coh >= thr) & (freq > 0) & (np.abs(pfx) > 0)
@@ -258,4 +265,15 @@ def _resonance(freq, pff, pfx, coh, thr, coherent) -> float | None:
     if k <= 0 or m <= 0:
         return None
     fr = float(np.sqrt(k / m) / (2 * np.pi))
-    return fr if coherent[0] <= fr <= coherent[1] else None
+    if not coherent[0] <= fr <= coherent[1]:
+        return None
+    # a resonance is where the dynamic stiffness turns from spring-like to mass-like: the
+    # measured Re(F/X) must be positive below it and negative above it (3 bins each)
+    f_use = freq[use]
+    below = dyn.real[f_use < 0.8 * fr]
+    above = dyn.real[f_use > 1.25 * fr]
+    if below.size < 3 or above.size < 3:
+        return None
+    if np.mean(below > 0) < 0.8 or np.mean(above < 0) < 0.8:
+        return None
+    return fr
