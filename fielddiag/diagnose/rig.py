@@ -174,7 +174,8 @@ def rig_data_from_displacement(
     if cutoff_hz is not None:
         given = None if not np.isfinite(cutoff_hz) or cutoff_hz >= fs / 2 else float(cutoff_hz)
         band = RigBand(given, band.motion_edge_hz, band.snr_edge_hz, band.coherent_band_hz,
-                       band.resonance_hz, fs, f"cut-off given: {given or 'none'}")
+                       band.resonance_hz, fs, f"cut-off given: {given or 'none'}",
+                       band.displacement_noise_psd)
     x, v, a = zero_phase(lowpass(x_raw, fs, band.cutoff_hz), fs, None, (0, 1, 2))
     data = RigData(fs, np.asarray(time_s, float), f, x, v, a, force_unit,
                    displacement_unit, f, band)
@@ -323,6 +324,7 @@ def fit_rig_model(
     starts = [z0 for z0 in _start_values(model, data, linear or {})]
 
     lin_idx = np.flatnonzero(lin)
+    noise_cov = _noise_covariance(model, data, lin_idx)
     term_of = np.array(["", "", *model.param_terms])
     moving = np.isin(term_of[lin_idx], sorted({term_of[i] for i in np.flatnonzero(nonlin)}))
     base: dict[str, np.ndarray] = {}
@@ -346,11 +348,24 @@ def fit_rig_model(
         a = base["a"]
         scale = np.sqrt(np.sum(a * a, axis=0))
         scale[scale == 0] = 1.0
-        sol = optimize.lsq_linear(a / scale, data.force, bounds=(lower[lin] * scale,
-                                                                 upper[lin] * scale),
-                                  method="bvls")
+        a_s = a / scale
+        bounds = (lower[lin] * scale, upper[lin] * scale)
+        sol = None
+        if noise_cov is not None:
+            # errors in variables: the sensor noise in x, v, a (and x^3) adds n * Sigma to
+            # A'A; minimise t'(A'A - n Sigma)t - 2 t'A'b, written as a least-squares
+            # problem with the Cholesky factor (falls back when not positive definite)
+            m_mat = a_s.T @ a_s - data.n * noise_cov / np.outer(scale, scale)
+            try:
+                chol = np.linalg.cholesky(m_mat).T
+                rhs = np.linalg.solve(chol.T, a_s.T @ data.force)
+                sol = optimize.lsq_linear(chol, rhs, bounds=bounds, method="bvls")
+            except np.linalg.LinAlgError:
+                sol = None
+        if sol is None:
+            sol = optimize.lsq_linear(a_s, data.force, bounds=bounds, method="bvls")
         z[lin] = sol.x / scale
-        return z, data.force - (a / scale) @ sol.x
+        return z, data.force - a_s @ sol.x
 
     best_z, best_cost = None, np.inf
     for z0 in starts:
@@ -383,6 +398,38 @@ def fit_rig_model(
     except np.linalg.LinAlgError:
         cov[np.ix_(free, free)] = np.nan
     return model, z, cov, s2
+
+
+#: Columns of the linear fit that white displacement noise enters, by parameter key.
+_NOISY_COLUMNS = {
+    "linear_spring.suspension_stiffness_n_per_m": "x",
+    "linear_damper.suspension_damping_ns_per_m": "v",
+    "cubic_stiffness.cubic_stiffness_n_per_m3": "x3",
+}
+
+
+def _noise_covariance(model: ForceModel, data: RigData, lin_idx: np.ndarray
+                      ) -> np.ndarray | None:
+    """Covariance per sample of the displacement-noise part of the linear columns
+    (``a``, ``x``, ``v``; ``x^3`` to first order, ``3 x^2 n``), from the band's measured
+    noise floor; None without one."""
+    band = data.band
+    if band is None or band.displacement_noise_psd <= 0:
+        return None
+    vx, cxa, vv, va = band.noise_moments()
+    x2 = float(np.mean(data.displacement**2))
+    x4 = float(np.mean(data.displacement**4))
+    keys = ("", "a", *[_NOISY_COLUMNS.get(k, "") for k in model.param_keys])
+    kinds = [keys[i] for i in lin_idx]
+    table = {
+        ("x", "x"): vx, ("a", "a"): va, ("v", "v"): vv, ("x", "a"): cxa,
+        ("x3", "x3"): 9.0 * x4 * vx, ("x3", "x"): 3.0 * x2 * vx, ("x3", "a"): 3.0 * x2 * cxa,
+    }
+    cov = np.zeros((len(kinds), len(kinds)))
+    for i, ki in enumerate(kinds):
+        for j, kj in enumerate(kinds):
+            cov[i, j] = table.get((ki, kj), table.get((kj, ki), 0.0))
+    return cov if np.any(cov) else None
 
 
 def _named(model: ForceModel, z: np.ndarray) -> dict[str, float]:

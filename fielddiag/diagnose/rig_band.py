@@ -67,6 +67,9 @@ class RigBand:
         Sample rate of the record [Hz].
     reason : str
         One line on how the band was chosen.
+    displacement_noise_psd : float
+        One-sided noise floor of the displacement [unit^2/Hz] (what the fit's
+        errors-in-variables correction takes as white sensor noise).
     """
 
     cutoff_hz: float | None
@@ -76,6 +79,7 @@ class RigBand:
     resonance_hz: float | None
     sample_rate_hz: float
     reason: str
+    displacement_noise_psd: float = 0.0
 
     def to_dict(self) -> dict:
         """JSON form (``band`` of the rig diagnosis)."""
@@ -89,7 +93,20 @@ class RigBand:
             "resonance_hz": self.resonance_hz,
             "sample_rate_hz": self.sample_rate_hz,
             "reason": self.reason,
+            "displacement_noise_psd": self.displacement_noise_psd,
         }
+
+    def noise_moments(self) -> tuple[float, float, float, float]:
+        """Variance per sample of white displacement noise in the fit's columns, after the
+        filter on the motion and again on the model's force (``|H|^4``): (x, x with a,
+        v, a), i.e. ``int N G``, ``-int w^2 N G``, ``int w^2 N G``, ``int w^4 N G``."""
+        f = np.linspace(0.0, self.sample_rate_hz / 2, 4097)
+        g = np.ones_like(f) if self.cutoff_hz is None else (
+            1.0 / (1.0 + (f / self.cutoff_hz) ** (2 * ORDER))) ** 2
+        w2 = (2 * np.pi * f) ** 2
+        ng = self.displacement_noise_psd * g
+        return (float(np.trapezoid(ng, f)), float(-np.trapezoid(w2 * ng, f)),
+                float(np.trapezoid(w2 * ng, f)), float(np.trapezoid(w2 * w2 * ng, f)))
 
 
 def lowpass(x: np.ndarray, sample_rate_hz: float, cutoff_hz: float | None) -> np.ndarray:
@@ -246,7 +263,7 @@ def choose_rig_band(
         why += f"; force and motion low-passed alike at {cutoff:.3g} Hz (1.5 x the edge)"
     if resonance is not None:
         why += f"; resonance near {resonance:.3g} Hz"
-    return RigBand(cutoff, edge, snr_edge, coherent, resonance, fs, why)
+    return RigBand(cutoff, edge, snr_edge, coherent, resonance, fs, why, floor)
 
 
 def _resonance(freq, pff, pfx, coh, thr, coherent) -> float | None:
