@@ -19,8 +19,9 @@ differentiated spectrally (exact at any sample-rate/resonance ratio); the *resid
 ``force - model(motion)`` is filtered by the same filter, so whatever the filter takes out
 of the measured force (the harmonics of a friction step or of a cubic spring above the
 cut-off) it takes out of the model's force too, and no parameter is biased by it. The
-moving mass ``m`` stays in the model when the data show inertia (significant, and at
-least 1 % of the force, as on any rig with a resonance); otherwise it is fixed at zero.
+moving mass ``m`` stays in the model when the data show inertia (significant, at least
+1 % of the force, and seen in the frequency response: a resonance, or ``Re(F/X)``
+falling as ``k - m w^2``); otherwise it is fixed at zero.
 """
 
 from __future__ import annotations
@@ -175,7 +176,7 @@ def rig_data_from_displacement(
         given = None if not np.isfinite(cutoff_hz) or cutoff_hz >= fs / 2 else float(cutoff_hz)
         band = RigBand(given, band.motion_edge_hz, band.snr_edge_hz, band.coherent_band_hz,
                        band.resonance_hz, fs, f"cut-off given: {given or 'none'}",
-                       band.displacement_noise_psd)
+                       band.displacement_noise_psd, band.frf_mass)
     x, v, a = zero_phase(lowpass(x_raw, fs, band.cutoff_hz), fs, None, (0, 1, 2))
     data = RigData(fs, np.asarray(time_s, float), f, x, v, a, force_unit,
                    displacement_unit, f, band)
@@ -693,7 +694,9 @@ def diagnose_rig(
 def inertia_shown(baseline: CandidateFit, fit: RigData) -> bool:
     """Do the data show the moving mass? Its estimate (linear model with mass) must be
     at least 3 standard deviations above zero and its force ``m a`` at least
-    :data:`MIN_INERTIA_SHARE` of the force's spread, as on a rig with a resonance.
+    :data:`MIN_INERTIA_SHARE` of the force's spread; and the frequency response must
+    show it: a resonance, or ``Re(F/X)`` falling as ``k - m w^2`` with a mass within a
+    factor 2 of the time-domain one.
 
     Parameters
     ----------
@@ -709,7 +712,15 @@ def inertia_shown(baseline: CandidateFit, fit: RigData) -> bool:
     m = baseline.values["moving_mass_kg"]
     sd = baseline.std.get("moving_mass_kg", np.inf)
     share = m * float(np.std(fit.acceleration)) / max(float(np.std(fit.force)), 1e-300)
-    return bool(m > 3.0 * sd and share >= MIN_INERTIA_SHARE)
+    if not (m > 3.0 * sd and share >= MIN_INERTIA_SHARE):
+        return False
+    band = fit.band
+    if band is None or band.resonance_hz is not None:
+        return True
+    # without a resonance, the frequency response must show the same mass: Re(F/X)
+    # falling as k - m w^2 (a mass that only soaks up unmodelled force, such as an MR
+    # damper's hysteresis on a sinusoidal stroke, does not)
+    return band.frf_mass is not None and 0.5 <= band.frf_mass / m <= 2.0
 
 
 def rig_data_from_session(reader) -> RigData:

@@ -70,6 +70,9 @@ class RigBand:
     displacement_noise_psd : float
         One-sided noise floor of the displacement [unit^2/Hz] (what the fit's
         errors-in-variables correction takes as white sensor noise).
+    frf_mass : float or None
+        Moving mass read from ``Re(F/X) = k - m w^2`` over the coherent band, when that
+        line explains ``Re(F/X)`` (R^2 >= 0.9) with ``m > 0``; None otherwise.
     """
 
     cutoff_hz: float | None
@@ -80,6 +83,7 @@ class RigBand:
     sample_rate_hz: float
     reason: str
     displacement_noise_psd: float = 0.0
+    frf_mass: float | None = None
 
     def to_dict(self) -> dict:
         """JSON form (``band`` of the rig diagnosis)."""
@@ -94,6 +98,7 @@ class RigBand:
             "sample_rate_hz": self.sample_rate_hz,
             "reason": self.reason,
             "displacement_noise_psd": self.displacement_noise_psd,
+            "frf_mass": self.frf_mass,
         }
 
     def noise_moments(self) -> tuple[float, float, float, float]:
@@ -246,7 +251,7 @@ def choose_rig_band(
     strong = np.flatnonzero((coh >= max(SNR_MIN / (1.0 + SNR_MIN), thr)) & (freq > 0))
     coh_edge = float(freq[strong[-1]]) if strong.size else 0.0
     edge = max(snr_edge, coh_edge)
-    resonance = _resonance(freq, pff, pfx, coh, thr, coherent)
+    resonance, frf_mass = _resonance(freq, pff, pfx, coh, thr, coherent)
     if edge <= 0.0:
         edge = 0.1 * fs
         why = "no band stands out of the noise; the motion edge assumed at a tenth of fs"
@@ -263,35 +268,41 @@ def choose_rig_band(
         why += f"; force and motion low-passed alike at {cutoff:.3g} Hz (1.5 x the edge)"
     if resonance is not None:
         why += f"; resonance near {resonance:.3g} Hz"
-    return RigBand(cutoff, edge, snr_edge, coherent, resonance, fs, why, floor)
+    return RigBand(cutoff, edge, snr_edge, coherent, resonance, fs, why, floor, frf_mass)
 
 
-def _resonance(freq, pff, pfx, coh, thr, coherent) -> float | None:
-    """Resonance from ``F/X = k - m w^2 + i c w`` fitted to the coherent bins, if the
-    fitted mass and stiffness are positive, the resonance lies inside the band and the
-    measured ``Re(F/X)`` changes sign across it."""
+def _resonance(freq, pff, pfx, coh, thr, coherent) -> tuple[float | None, float | None]:
+    """(resonance, mass) from ``F/X = k - m w^2 + i c w`` fitted to the coherent bins.
+
+    The mass is returned when the line ``k - m w^2`` explains ``Re(F/X)`` (R^2 >= 0.9)
+    with ``m > 0``; the resonance when, besides, ``k > 0``, it lies inside the band and
+    the measured ``Re(F/X)`` changes sign across it."""
     if coherent is None:
-        return None
+        return None, None
     use = (coh >= thr) & (freq > 0) & (np.abs(pfx) > 0)
     if use.sum() < 4:
-        return None
+        return None, None
     w = 2 * np.pi * freq[use]
     dyn = pff[use] / pfx[use]  # F/X, from the H1 receptance X/F = Pfx/Pff (Pfx = E[F* X])
     wt = np.sqrt(coh[use])
     a = np.column_stack([np.ones_like(w), -(w**2)]) * wt[:, None]
-    k, m = np.linalg.lstsq(a, dyn.real * wt, rcond=None)[0]
+    y = dyn.real * wt
+    (k, m), *_ = np.linalg.lstsq(a, y, rcond=None)
+    r2 = 1.0 - float(np.sum((y - a @ np.array([k, m])) ** 2)) / max(
+        float(np.sum((y - y.mean()) ** 2)), 1e-300)
+    mass = float(m) if (m > 0 and r2 >= 0.9) else None
     if k <= 0 or m <= 0:
-        return None
+        return None, mass
     fr = float(np.sqrt(k / m) / (2 * np.pi))
     if not coherent[0] <= fr <= coherent[1]:
-        return None
+        return None, mass
     # a resonance is where the dynamic stiffness turns from spring-like to mass-like: the
     # measured Re(F/X) must be positive below it and negative above it (3 bins each)
     f_use = freq[use]
     below = dyn.real[f_use < 0.8 * fr]
     above = dyn.real[f_use > 1.25 * fr]
     if below.size < 3 or above.size < 3:
-        return None
+        return None, mass
     if np.mean(below > 0) < 0.8 or np.mean(above < 0) < 0.8:
-        return None
-    return fr
+        return None, mass
+    return fr, mass
