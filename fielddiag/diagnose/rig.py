@@ -193,17 +193,52 @@ def rig_data_from_acceleration(
     band_hz: tuple[float, float] | None = None,
     force_unit: str = "N",
 ) -> RigData:
-    """Velocity and displacement by integrating the acceleration in ``band_hz``.
+    """Rig samples from a measured force and acceleration, in a band read from the data.
 
-    The absolute position is lost: ``r`` is measured from the mean position.
+    The band is chosen from the force and the acceleration as for a displacement
+    (:func:`rig_data_from_displacement`; coherence does not change under integration);
+    the acceleration is low-passed by that band's filter (the same one the force and the
+    model's force get) and integrated from half the lowest coherent frequency (at least
+    0.2 Hz) up. The absolute position is lost:
+    ``r`` is measured from the mean position. The displacement noise floor is not that of
+    a sensor here, so the fit makes no errors-in-variables correction.
+
+    Parameters
+    ----------
+    time_s, force, acceleration : array_like
+        Samples on a uniform time base (acceleration in m/s^2).
+    sample_rate_hz : float
+        Sample rate [Hz].
+    band_hz : (float, float) or None
+        Force the integration band [Hz] instead of choosing the upper edge from the data
+        (the force is then not filtered).
+    force_unit : str
+        Unit of the force as recorded.
+
+    Returns
+    -------
+    RigData
     """
     from fielddiag.dsp import integrate_acceleration
 
     fs = float(sample_rate_hz)
-    band = band_hz or (0.2, 0.1 * fs)
-    motion = integrate_acceleration(acceleration, fs, band, method="frequency")
     f = np.asarray(force, float)
-    return RigData(
+    acc = np.asarray(acceleration, float)
+    if band_hz is not None:
+        motion = integrate_acceleration(acc, fs, band_hz, method="frequency")
+        band = None
+        low_passed = acc
+    else:
+        band = choose_rig_band(f, acc, fs, motion="acceleration")
+        band = RigBand(band.cutoff_hz, band.motion_edge_hz, band.snr_edge_hz,
+                       band.coherent_band_hz, band.resonance_hz, fs,
+                       band.reason + " (read from the acceleration)", 0.0, band.frf_mass)
+        low_passed = lowpass(acc, fs, band.cutoff_hz)
+        # integration from half the lowest coherent frequency: below it the double
+        # integral would be noise amplified as 1/w^4
+        lo = 0.2 if band.coherent_band_hz is None else max(0.2, 0.5 * band.coherent_band_hz[0])
+        motion = integrate_acceleration(low_passed, fs, (lo, 0.49 * fs), method="frequency")
+    data = RigData(
         fs,
         np.asarray(time_s, float),
         f,
@@ -212,7 +247,11 @@ def rig_data_from_acceleration(
         motion.acceleration_mps2,
         force_unit,
         "m",
+        f if band is not None else None,
+        band,
     )
+    k = _edge_margin(fs, None if band is None else band.cutoff_hz, data.n)
+    return data.part(k, data.n - k)
 
 
 # ----------------------------------------------------------------------------- fitting

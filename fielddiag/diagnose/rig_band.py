@@ -207,7 +207,8 @@ def _psd_setup(n: int) -> int:
 
 
 def choose_rig_band(
-    force: np.ndarray, displacement: np.ndarray, sample_rate_hz: float
+    force: np.ndarray, displacement: np.ndarray, sample_rate_hz: float, *,
+    motion: str = "displacement",
 ) -> RigBand:
     """Choose the analysis band of a rig record from its spectra.
 
@@ -219,6 +220,9 @@ def choose_rig_band(
         Measured displacement (any unit), same samples.
     sample_rate_hz : float
         Sample rate [Hz].
+    motion : {"displacement", "acceleration"}
+        What ``displacement`` holds; with an acceleration the frequency response is
+        turned into ``F/X`` by ``-w^2`` and no displacement noise floor is reported.
 
     Returns
     -------
@@ -251,6 +255,10 @@ def choose_rig_band(
     strong = np.flatnonzero((coh >= max(SNR_MIN / (1.0 + SNR_MIN), thr)) & (freq > 0))
     coh_edge = float(freq[strong[-1]]) if strong.size else 0.0
     edge = max(snr_edge, coh_edge)
+    if motion == "acceleration":  # X = -A / w^2, so F/X = -w^2 F/A: Pfx = -Pfa / w^2
+        with np.errstate(divide="ignore", invalid="ignore"):
+            pfx = np.where(freq > 0, -pfx / (2 * np.pi * np.maximum(freq, 1e-12)) ** 2, 0)
+        floor = 0.0
     resonance, frf_mass = _resonance(freq, pff, pfx, coh, thr, coherent)
     if edge <= 0.0:
         edge = 0.1 * fs
