@@ -725,9 +725,73 @@ def diagnose_rig(
     if max_pair:
         combos += [c for c in itertools.combinations(effects, 2)]
     candidates = [_candidate(c, fit, val, linear, fit_mass) for c in combos]
-    sel = select_model(baseline, candidates)
+    sel = _select_whitened(baseline, candidates, fit)
     unexplained = _unexplained_structure(baseline, sel.chosen, fit, val)
     return RigDiagnosis(sel, data, split, unexplained, fit_mass)
+
+
+#: Order of the autoregressive whitening filter of the held-out comparison.
+WHITENING_ORDER = 12
+
+
+def whitening_filter(residual: np.ndarray, order: int = WHITENING_ORDER) -> np.ndarray:
+    """Prediction-error filter ``[1, -a1, ..., -ap]`` of an autoregressive model of a
+    residual (Yule-Walker), which turns it into nearly white noise.
+
+    Parameters
+    ----------
+    residual : numpy.ndarray
+        The linear model's residual on the fitted part.
+    order : int
+        Autoregressive order.
+
+    Returns
+    -------
+    numpy.ndarray
+        FIR coefficients (``[1.0]`` when the record is too short or the residual zero).
+    """
+    from scipy.linalg import solve_toeplitz
+
+    r = np.asarray(residual, float) - float(np.mean(residual))
+    if r.size < 20 * order or not np.any(r):
+        return np.array([1.0])
+    acf = np.array([r[: r.size - k] @ r[k:] for k in range(order + 1)]) / r.size
+    try:
+        a = solve_toeplitz(acf[:-1], acf[1:])
+    except np.linalg.LinAlgError:
+        return np.array([1.0])
+    return np.concatenate(([1.0], -a)) if np.all(np.isfinite(a)) else np.array([1.0])
+
+
+def _select_whitened(baseline: CandidateFit, candidates: list[CandidateFit], fit: RigData
+                     ) -> Selection:
+    """:func:`select_model` on the plain held-out residuals; where the linear model stands
+    there, once more on residuals whitened by one filter (from the linear model's residual
+    on the fitted part), then the plain residuals put back.
+
+    Sensor noise reaches the force residual coloured (displacement noise through ``m a``
+    grows as ``w^2``), so a few noisy frequencies can dominate the block test and hide a
+    weak effect; whitening, one linear filter for every candidate, weighs all frequencies
+    by their noise. Where the residual is model error rather than noise (a real damper's
+    hysteresis) whitening weighs the wrong thing, hence the plain test first."""
+    from scipy.signal import lfilter
+
+    plain_sel = select_model(baseline, candidates)
+    if plain_sel.chosen is not baseline:
+        return plain_sel
+    res_fit, _ = _residual_and_jac(baseline.extra["model"], baseline.extra["z"], fit)
+    w = whitening_filter(res_fit)
+    if w.size == 1:
+        return plain_sel
+    plain = {id(c): c.residual_validation for c in (baseline, *candidates)}
+    for c in (baseline, *candidates):
+        c.residual_validation = lfilter(w, [1.0], plain[id(c)])[w.size:]
+    try:
+        white_sel = select_model(baseline, candidates)
+    finally:
+        for c in (baseline, *candidates):
+            c.residual_validation = plain[id(c)]
+    return white_sel if white_sel.chosen is not baseline else plain_sel
 
 
 def inertia_shown(baseline: CandidateFit, fit: RigData) -> bool:
