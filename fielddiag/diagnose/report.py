@@ -91,6 +91,8 @@ def format_summary(out: dict) -> str:
             for key, name, unit in (("stiffness", "stiffness", p["stiffness"]["unit"]),
                                     ("damping", "damping", p["damping"]["unit"]),
                                     ("moving_mass_kg", "moving mass", "kg"))))
+        if out.get("band"):
+            lines.append(f"  band: {out['band'].get('reason', '')}")
     for w in out.get("warnings", []):
         lines.append(f"  WARNING ({w['kind']}): {w['message']}")
     return "\n".join(lines)

@@ -91,12 +91,32 @@ class RigData:
         return None if self.band is None else self.band.cutoff_hz
 
     def lowpass(self, x: np.ndarray) -> np.ndarray:
-        """``x`` (samples of this record, or columns of them) through the band's filter."""
+        """``x`` (samples of this record, or columns of them) through the band's filter.
+
+        Parameters
+        ----------
+        x : numpy.ndarray, shape (n,) or (n, k)
+
+        Returns
+        -------
+        numpy.ndarray
+            Same shape; ``x`` itself when there is no filter.
+        """
         return lowpass(x, self.sample_rate_hz, self.cutoff_hz)
 
     def part(self, start: int, stop: int) -> RigData:
         """Samples ``start:stop``; the force is filtered again over the part alone, as the
-        fit filters its residual there (the same filter on both sides, same ends)."""
+        fit filters its residual there (the same filter on both sides, same ends).
+
+        Parameters
+        ----------
+        start, stop : int
+            Sample range.
+
+        Returns
+        -------
+        RigData
+        """
         sl = slice(start, stop)
         raw = None if self.force_raw is None else self.force_raw[sl]
         force = self.force[sl] if raw is None else self._part_force(raw)
@@ -123,6 +143,7 @@ class RigData:
 
     @property
     def n(self) -> int:
+        """Number of samples."""
         return int(self.force.size)
 
 
@@ -539,6 +560,16 @@ class RigDiagnosis:
     inertia_kept: bool = True
 
     def to_dict(self) -> dict:
+        """The JSON of ``fielddiag diagnose`` in rig mode.
+
+        Returns
+        -------
+        dict
+            ``mode``, ``verdict``, ``baseline``, ``augmented``, ``parameters``,
+            ``findings``, ``candidates``, ``validation``, ``band`` (the filter, its
+            cut-off, the motion edge, coherent band, resonance, whether the moving mass
+            is in the model, and why) and ``warnings``.
+        """
         sel = self.selection
         base, chosen = sel.baseline, sel.chosen
         verdict = "adequate" if (chosen is base and self.unexplained is None) else "missing_physics"
@@ -701,6 +732,27 @@ def diagnose_rig(
     max_pair: bool = True,
 ) -> RigDiagnosis:
     """Fit the linear rig model and every candidate (single effects and pairs), and choose.
+
+    Every model is fitted on the first part of the record and scored on the rest, with
+    the rule of :mod:`fielddiag.diagnose.selection` (and, where the linear model stands,
+    once more on whitened held-out residuals). The moving mass is fitted only where the
+    data show inertia (:func:`inertia_shown`).
+
+    Parameters
+    ----------
+    data : RigData
+        The record, in its band (:func:`rig_data_from_displacement`,
+        :func:`rig_data_from_acceleration`).
+    effects : sequence of str
+        Candidate effects (library names).
+    holdout_fraction : float
+        Fraction of the record, at its end, held out for validation.
+    max_pair : bool
+        Also try every pair of effects.
+
+    Returns
+    -------
+    RigDiagnosis
 
     Raises
     ------
