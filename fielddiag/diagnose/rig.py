@@ -119,7 +119,7 @@ class RigData:
         """
         sl = slice(start, stop)
         raw = None if self.force_raw is None else self.force_raw[sl]
-        force = self.force[sl] if raw is None else self._part_force(raw)
+        force = self.force[sl] if raw is None else self.lowpass(raw)
         return RigData(
             self.sample_rate_hz,
             self.time_s[sl],
@@ -132,9 +132,6 @@ class RigData:
             raw,
             self.band,
         )
-
-    def _part_force(self, raw: np.ndarray) -> np.ndarray:
-        return self.lowpass(raw)
 
     @property
     def measured_force(self) -> np.ndarray:
@@ -382,7 +379,7 @@ def fit_rig_model(
     free[1] = fit_mass
     lin = linear_mask & free
     nonlin = ~linear_mask & free
-    starts = [z0 for z0 in _start_values(model, data, linear or {})]
+    starts = _start_values(model, data, linear or {})
 
     lin_idx = np.flatnonzero(lin)
     noise_cov = _noise_covariance(model, data, lin_idx)
