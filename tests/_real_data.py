@@ -16,3 +16,4 @@ DATA = shared_data()
 CAN_LOG = DATA / "can" / "comma2k19_rav4_2018-08-02_seg40.log"
 PT_DBC = DATA / "can" / "toyota_new_mc_pt_generated.dbc"
 ADAS_DBC = DATA / "can" / "toyota_adas.dbc"
+MR_DAMPER = DATA / "mr_damper"

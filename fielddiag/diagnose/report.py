@@ -121,6 +121,8 @@ def format_summary(out: dict) -> str:
             for key, name, unit in (("stiffness", "stiffness", p["stiffness"]["unit"]),
                                     ("damping", "damping", p["damping"]["unit"]),
                                     ("moving_mass_kg", "moving mass", "kg"))))
+        if out.get("band"):
+            lines.append(f"  band: {out['band'].get('reason', '')}")
     ride = out.get("ride_height")
     if ride:
         lines.append(f"  ride height: {ride['message']}")

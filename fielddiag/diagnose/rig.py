@@ -10,6 +10,18 @@ linear damper ``-c rdot`` and the candidate effects), ``m`` the moving mass and 
 preload or load-cell offset. The model is linear in every parameter but a bump stop's
 gap, so fits are quick; held-out data (the last part of the recording) decide which
 effects are real, with the rule of :mod:`fielddiag.diagnose.selection`.
+
+The band is read from the data (:mod:`fielddiag.diagnose.rig_band`): the displacement's
+signal-to-noise and the force/displacement coherence give the highest frequency the
+motion carries, and one zero-phase low-pass (or none, when the signal fills the band to
+Nyquist) acts alike on both sides of the force equation. The motion is filtered and
+differentiated spectrally (exact at any sample-rate/resonance ratio); the *residual*
+``force - model(motion)`` is filtered by the same filter, so whatever the filter takes out
+of the measured force (the harmonics of a friction step or of a cubic spring above the
+cut-off) it takes out of the model's force too, and no parameter is biased by it. The
+moving mass ``m`` stays in the model when the data show inertia (significant, at least
+1 % of the force, and seen in the frequency response: a resonance, or ``Re(F/X)``
+falling as ``k - m w^2``); otherwise it is fixed at zero.
 """
 
 from __future__ import annotations
@@ -19,10 +31,11 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import optimize, signal
+from scipy import optimize
 
 from fielddiag.blas import single_threaded_blas
 from fielddiag.diagnose.locate import departure_map
+from fielddiag.diagnose.rig_band import RigBand, choose_rig_band, lowpass, zero_phase
 from fielddiag.diagnose.selection import (
     CandidateFit,
     Selection,
@@ -35,11 +48,31 @@ from fielddiag.identify.terms import ForceModel, make_term, split_shape
 
 #: Effect terms tried by default, in the diagnosis library's names.
 RIG_EFFECTS = ("coulomb_friction", "cubic_stiffness", "bump_stop", "asymmetric_damping")
+#: The moving mass is kept when its force is at least this share of the force's spread.
+MIN_INERTIA_SHARE = 0.01
 
 
 @dataclass(frozen=True)
 class RigData:
-    """Synchronous rig samples on a uniform time base (SI or the units recorded)."""
+    """Synchronous rig samples on a uniform time base (SI or the units recorded).
+
+    Attributes
+    ----------
+    sample_rate_hz : float
+        Sample rate [Hz].
+    time_s : numpy.ndarray
+        Sample times [s].
+    force : numpy.ndarray
+        Measured force through the band's filter, over this record (or part).
+    displacement, velocity, acceleration : numpy.ndarray
+        Motion through the same filter, the rates spectral derivatives.
+    force_unit, displacement_unit : str
+        Units as recorded.
+    force_raw : numpy.ndarray or None
+        Measured force as recorded (None: ``force`` is unfiltered).
+    band : RigBand or None
+        The analysis band and why it was chosen (None: no filter, nothing chosen).
+    """
 
     sample_rate_hz: float
     time_s: np.ndarray
@@ -49,28 +82,72 @@ class RigData:
     acceleration: np.ndarray
     force_unit: str = "N"
     displacement_unit: str = "m"
+    force_raw: np.ndarray | None = None
+    band: RigBand | None = None
+
+    @property
+    def cutoff_hz(self) -> float | None:
+        """The low-pass acting on both sides of the force equation (None: no filter)."""
+        return None if self.band is None else self.band.cutoff_hz
+
+    def lowpass(self, x: np.ndarray) -> np.ndarray:
+        """``x`` (samples of this record, or columns of them) through the band's filter.
+
+        Parameters
+        ----------
+        x : numpy.ndarray, shape (n,) or (n, k)
+
+        Returns
+        -------
+        numpy.ndarray
+            Same shape; ``x`` itself when there is no filter.
+        """
+        return lowpass(x, self.sample_rate_hz, self.cutoff_hz)
 
     def part(self, start: int, stop: int) -> RigData:
+        """Samples ``start:stop``; the force is filtered again over the part alone, as the
+        fit filters its residual there (the same filter on both sides, same ends).
+
+        Parameters
+        ----------
+        start, stop : int
+            Sample range.
+
+        Returns
+        -------
+        RigData
+        """
         sl = slice(start, stop)
+        raw = None if self.force_raw is None else self.force_raw[sl]
+        force = self.force[sl] if raw is None else self.lowpass(raw)
         return RigData(
             self.sample_rate_hz,
             self.time_s[sl],
-            self.force[sl],
+            force,
             self.displacement[sl],
             self.velocity[sl],
             self.acceleration[sl],
             self.force_unit,
             self.displacement_unit,
+            raw,
+            self.band,
         )
 
     @property
+    def measured_force(self) -> np.ndarray:
+        """The force as recorded (before the band's filter)."""
+        return self.force if self.force_raw is None else self.force_raw
+
+    @property
     def n(self) -> int:
+        """Number of samples."""
         return int(self.force.size)
 
 
-def _lowpass(x: np.ndarray, fs: float, cutoff_hz: float) -> np.ndarray:
-    sos = signal.butter(4, cutoff_hz, fs=fs, output="sos")
-    return signal.sosfiltfilt(sos, x)
+def _edge_margin(sample_rate_hz: float, cutoff_hz: float | None, n: int) -> int:
+    """Samples dropped at each end of a record: the filter's settling near the ends."""
+    settle = 8 if cutoff_hz is None else int(np.ceil(2.0 * sample_rate_hz / cutoff_hz))
+    return int(min(max(settle, 8), n // 20))
 
 
 def rig_data_from_displacement(
@@ -83,22 +160,46 @@ def rig_data_from_displacement(
     force_unit: str = "N",
     displacement_unit: str = "m",
 ) -> RigData:
-    """Velocity and acceleration by differentiating the displacement.
+    """Rig samples from a measured force and displacement, in a band read from the data.
 
-    Only the displacement is low-passed (zero phase, ``cutoff_hz``, default a tenth of the
-    sample rate) to keep differentiation noise down; the force is left as measured, since
-    filtering it would smear the steps of dry friction or a bump stop that the model, fed
-    with the smooth motion, reproduces sharply (a 25 Hz filter biases a friction force
-    about 15 % low). The displacement keeps its absolute zero (a bump stop's gap is
-    measured from the rig's zero).
+    The band (:func:`fielddiag.diagnose.rig_band.choose_rig_band`) comes from the
+    displacement's signal-to-noise and the force/displacement coherence; the same
+    zero-phase low-pass (or none) then acts on the displacement, whose velocity and
+    acceleration are its exact spectral derivatives, and on the force. The fit filters its
+    residual with it too, so a friction step or a cubic spring's harmonics above the
+    cut-off leave the measured and the modelled force alike. The displacement keeps its
+    absolute zero (a bump stop's gap is measured from the rig's zero). A few samples at
+    each end, where the filter settles, are dropped.
+
+    Parameters
+    ----------
+    time_s, force, displacement : array_like
+        Samples on a uniform time base.
+    sample_rate_hz : float
+        Sample rate [Hz].
+    cutoff_hz : float or None
+        Force a cut-off [Hz] instead of choosing one (``inf``: no filter).
+    force_unit, displacement_unit : str
+        Units as recorded.
+
+    Returns
+    -------
+    RigData
     """
     fs = float(sample_rate_hz)
-    fc = cutoff_hz or 0.1 * fs
-    x = _lowpass(np.asarray(displacement, float), fs, fc)
     f = np.asarray(force, float)
-    v = np.gradient(x, 1.0 / fs)
-    a = np.gradient(v, 1.0 / fs)
-    return RigData(fs, np.asarray(time_s, float), f, x, v, a, force_unit, displacement_unit)
+    x_raw = np.asarray(displacement, float)
+    band = choose_rig_band(f, x_raw, fs)
+    if cutoff_hz is not None:
+        given = None if not np.isfinite(cutoff_hz) or cutoff_hz >= fs / 2 else float(cutoff_hz)
+        band = RigBand(given, band.motion_edge_hz, band.snr_edge_hz, band.coherent_band_hz,
+                       band.resonance_hz, fs, f"cut-off given: {given or 'none'}",
+                       band.displacement_noise_psd, band.frf_mass)
+    x, v, a = zero_phase(lowpass(x_raw, fs, band.cutoff_hz), fs, None, (0, 1, 2))
+    data = RigData(fs, np.asarray(time_s, float), f, x, v, a, force_unit,
+                   displacement_unit, f, band)
+    k = _edge_margin(fs, band.cutoff_hz, data.n)
+    return data.part(k, data.n - k)
 
 
 def rig_data_from_acceleration(
@@ -110,17 +211,52 @@ def rig_data_from_acceleration(
     band_hz: tuple[float, float] | None = None,
     force_unit: str = "N",
 ) -> RigData:
-    """Velocity and displacement by integrating the acceleration in ``band_hz``.
+    """Rig samples from a measured force and acceleration, in a band read from the data.
 
-    The absolute position is lost: ``r`` is measured from the mean position.
+    The band is chosen from the force and the acceleration as for a displacement
+    (:func:`rig_data_from_displacement`; coherence does not change under integration);
+    the acceleration is low-passed by that band's filter (the same one the force and the
+    model's force get) and integrated from half the lowest coherent frequency (at least
+    0.2 Hz) up. The absolute position is lost:
+    ``r`` is measured from the mean position. The displacement noise floor is not that of
+    a sensor here, so the fit makes no errors-in-variables correction.
+
+    Parameters
+    ----------
+    time_s, force, acceleration : array_like
+        Samples on a uniform time base (acceleration in m/s^2).
+    sample_rate_hz : float
+        Sample rate [Hz].
+    band_hz : (float, float) or None
+        Force the integration band [Hz] instead of choosing the upper edge from the data
+        (the force is then not filtered).
+    force_unit : str
+        Unit of the force as recorded.
+
+    Returns
+    -------
+    RigData
     """
     from fielddiag.dsp import integrate_acceleration
 
     fs = float(sample_rate_hz)
-    band = band_hz or (0.2, 0.1 * fs)
-    motion = integrate_acceleration(acceleration, fs, band, method="frequency")
     f = np.asarray(force, float)
-    return RigData(
+    acc = np.asarray(acceleration, float)
+    if band_hz is not None:
+        motion = integrate_acceleration(acc, fs, band_hz, method="frequency")
+        band = None
+        low_passed = acc
+    else:
+        band = choose_rig_band(f, acc, fs, motion="acceleration")
+        band = RigBand(band.cutoff_hz, band.motion_edge_hz, band.snr_edge_hz,
+                       band.coherent_band_hz, band.resonance_hz, fs,
+                       band.reason + " (read from the acceleration)", 0.0, band.frf_mass)
+        low_passed = lowpass(acc, fs, band.cutoff_hz)
+        # integration from half the lowest coherent frequency: below it the double
+        # integral would be noise amplified as 1/w^4
+        lo = 0.2 if band.coherent_band_hz is None else max(0.2, 0.5 * band.coherent_band_hz[0])
+        motion = integrate_acceleration(low_passed, fs, (lo, 0.49 * fs), method="frequency")
+    data = RigData(
         fs,
         np.asarray(time_s, float),
         f,
@@ -129,7 +265,11 @@ def rig_data_from_acceleration(
         motion.acceleration_mps2,
         force_unit,
         "m",
+        f if band is not None else None,
+        band,
     )
+    k = _edge_margin(fs, None if band is None else band.cutoff_hz, data.n)
+    return data.part(k, data.n - k)
 
 
 # ----------------------------------------------------------------------------- fitting
@@ -140,15 +280,20 @@ def _model_for(effects: Sequence[str]) -> ForceModel:
 
 
 def _residual_and_jac(model: ForceModel, z: np.ndarray, data: RigData):
+    """Residual ``force - (F0 + m a - F)`` and its Jacobian in ``z``, both through the
+    band's filter (the measured force went through it; the model's force goes too)."""
     f0, m, theta = z[0], z[1], z[2:]
     zeros = np.zeros_like(data.displacement)
     fm, _, dth = model.force(data.displacement, data.velocity, zeros, theta)
-    pred = f0 + m * data.acceleration - fm
-    res = data.force - pred
+    pred_raw = m * data.acceleration - fm
     jac = np.empty((data.n, z.size))
     jac[:, 0] = -1.0
     jac[:, 1] = -data.acceleration
     jac[:, 2:] = dth
+    if data.cutoff_hz is not None:
+        filt = data.lowpass(np.column_stack([pred_raw, jac[:, 1:]]))
+        pred_raw, jac[:, 1:] = filt[:, 0], filt[:, 1:]
+    res = data.force - f0 - pred_raw
     return res, jac
 
 
@@ -190,37 +335,159 @@ def _inside(z0: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
 
 
 def fit_rig_model(
-    effects: Sequence[str], data: RigData, linear: dict[str, float] | None = None
+    effects: Sequence[str],
+    data: RigData,
+    linear: dict[str, float] | None = None,
+    *,
+    fit_mass: bool = True,
 ) -> tuple[ForceModel, np.ndarray, np.ndarray, float]:
     """Least-squares fit of ``F0, m`` and the model's parameters to the force.
 
-    Returns (model, z, covariance, residual variance); ``z = [F0, m, theta...]``.
+    Parameters
+    ----------
+    effects : sequence of str
+        Effects added to the linear spring and damper.
+    data : RigData
+        The samples to fit (the residual is filtered by ``data``'s band).
+    linear : dict or None
+        Start values by parameter key (``f0``, ``m`` and the model's keys).
+    fit_mass : bool
+        Fit the moving mass; False fixes it at zero (no inertia in the data).
+
+    Returns
+    -------
+    model : ForceModel
+    z : numpy.ndarray
+        ``[F0, m, theta...]``.
+    covariance : numpy.ndarray
+        Of ``z`` (zero row and column for a fixed mass).
+    residual_variance : float
     """
     model = _model_for(effects)
     lower = np.concatenate(([-np.inf, 0.0], model.lower))
     upper = np.concatenate(([np.inf, np.inf], model.upper))
-    linear = linear or {}
-    best = None
-    for z0 in _start_values(model, data, linear):
+    # variable projection: the force is proportional to each force-scaled parameter of a
+    # memoryless term (ParamSpec.scales_with_force), so linear in F0, m and those; only
+    # the rest (a bump stop's gap, friction's smoothing velocity) is searched, the linear
+    # ones solved by bounded least squares at every step of that search
+    lin_terms = {t.name for t in model.terms if t.n_states == 0}
+    linear_mask = np.concatenate(([True, True], [
+        spec.scales_with_force and term in lin_terms
+        for term, spec in zip(model.param_terms, model.specs, strict=True)
+    ]))
+    free = np.ones(lower.size, bool)
+    free[1] = fit_mass
+    lin = linear_mask & free
+    nonlin = ~linear_mask & free
+    starts = _start_values(model, data, linear or {})
+
+    lin_idx = np.flatnonzero(lin)
+    noise_cov = _noise_covariance(model, data, lin_idx)
+    term_of = np.array(["", "", *model.param_terms])
+    moving = np.isin(term_of[lin_idx], sorted({term_of[i] for i in np.flatnonzero(nonlin)}))
+    base: dict[str, np.ndarray] = {}
+
+    def solve_linear(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Best linear parameters for the nonlinear ones in ``z``; (z, filtered residual).
+
+        With every force-scaled parameter at zero the model's force is zero, so the
+        residual is the filtered force and the filtered Jacobian columns are the basis;
+        only the columns of terms with a nonlinear parameter change between calls."""
+        z = z.copy()
+        z[lin] = 0.0
+        if "a" not in base:
+            _, jac = _residual_and_jac(model, z, data)
+            base["a"] = -jac[:, lin_idx]
+        elif moving.any():
+            zeros = np.zeros_like(data.displacement)
+            _, _, dth = model.force(data.displacement, data.velocity, zeros, z[2:])
+            cols = dth[:, lin_idx[moving] - 2]
+            base["a"][:, moving] = -data.lowpass(cols)
+        a = base["a"]
+        scale = np.sqrt(np.sum(a * a, axis=0))
+        scale[scale == 0] = 1.0
+        a_s = a / scale
+        bounds = (lower[lin] * scale, upper[lin] * scale)
+        sol = None
+        if noise_cov is not None:
+            # errors in variables: the sensor noise in x, v, a (and x^3) adds n * Sigma to
+            # A'A; minimise t'(A'A - n Sigma)t - 2 t'A'b, written as a least-squares
+            # problem with the Cholesky factor (falls back when not positive definite)
+            m_mat = a_s.T @ a_s - data.n * noise_cov / np.outer(scale, scale)
+            try:
+                chol = np.linalg.cholesky(m_mat).T
+                rhs = np.linalg.solve(chol.T, a_s.T @ data.force)
+                sol = optimize.lsq_linear(chol, rhs, bounds=bounds, method="bvls")
+            except np.linalg.LinAlgError:
+                sol = None
+        if sol is None:
+            sol = optimize.lsq_linear(a_s, data.force, bounds=bounds, method="bvls")
+        z[lin] = sol.x / scale
+        return z, data.force - a_s @ sol.x
+
+    best_z, best_cost = None, np.inf
+    for z0 in starts:
         z0 = _inside(z0, lower, upper)
-        sol = optimize.least_squares(
-            lambda z: _residual_and_jac(model, z, data)[0],
-            z0,
-            jac=lambda z: _residual_and_jac(model, z, data)[1],
-            bounds=(lower, upper),
-            x_scale="jac",
-            method="trf",
-        )
-        if best is None or sol.cost < best.cost:
-            best = sol
-    res, jac = _residual_and_jac(model, best.x, data)
-    dof = max(data.n - best.x.size, 1)
+        z0[~free] = 0.0
+        if nonlin.any():
+            def reduced(q: np.ndarray, z0=z0) -> np.ndarray:
+                zz = z0.copy()
+                zz[nonlin] = q
+                return solve_linear(zz)[1]
+
+            sol = optimize.least_squares(reduced, z0[nonlin], bounds=(lower[nonlin],
+                                         upper[nonlin]), x_scale=np.abs(z0[nonlin]) + 1e-6,
+                                         method="trf", diff_step=1e-3, max_nfev=25,
+                                         xtol=1e-4, ftol=1e-6)
+            z0 = z0.copy()
+            z0[nonlin] = sol.x
+        z, res = solve_linear(z0)
+        cost = float(res @ res)
+        if cost < best_cost:
+            best_z, best_cost = z, cost
+    z = best_z
+    res, jac = _residual_and_jac(model, z, data)
+    jac = jac[:, free]
+    dof = max(data.n - int(free.sum()), 1)
     s2 = float(res @ res) / dof
+    cov = np.zeros((z.size, z.size))
     try:
-        cov = np.linalg.pinv(jac.T @ jac) * s2
+        cov[np.ix_(free, free)] = np.linalg.pinv(jac.T @ jac) * s2
     except np.linalg.LinAlgError:
-        cov = np.full((best.x.size, best.x.size), np.nan)
-    return model, best.x, cov, s2
+        cov[np.ix_(free, free)] = np.nan
+    return model, z, cov, s2
+
+
+#: Columns of the linear fit that white displacement noise enters, by parameter key.
+_NOISY_COLUMNS = {
+    "linear_spring.suspension_stiffness_n_per_m": "x",
+    "linear_damper.suspension_damping_ns_per_m": "v",
+    "cubic_stiffness.cubic_stiffness_n_per_m3": "x3",
+}
+
+
+def _noise_covariance(model: ForceModel, data: RigData, lin_idx: np.ndarray
+                      ) -> np.ndarray | None:
+    """Covariance per sample of the displacement-noise part of the linear columns
+    (``a``, ``x``, ``v``; ``x^3`` to first order, ``3 x^2 n``), from the band's measured
+    noise floor; None without one."""
+    band = data.band
+    if band is None or band.displacement_noise_psd <= 0:
+        return None
+    vx, cxa, vv, va = band.noise_moments()
+    x2 = float(np.mean(data.displacement**2))
+    x4 = float(np.mean(data.displacement**4))
+    keys = ("", "a", *[_NOISY_COLUMNS.get(k, "") for k in model.param_keys])
+    kinds = [keys[i] for i in lin_idx]
+    table = {
+        ("x", "x"): vx, ("a", "a"): va, ("v", "v"): vv, ("x", "a"): cxa,
+        ("x3", "x3"): 9.0 * x4 * vx, ("x3", "x"): 3.0 * x2 * vx, ("x3", "a"): 3.0 * x2 * cxa,
+    }
+    cov = np.zeros((len(kinds), len(kinds)))
+    for i, ki in enumerate(kinds):
+        for j, kj in enumerate(kinds):
+            cov[i, j] = table.get((ki, kj), table.get((kj, ki), 0.0))
+    return cov if np.any(cov) else None
 
 
 def _named(model: ForceModel, z: np.ndarray) -> dict[str, float]:
@@ -254,9 +521,13 @@ def _at_bound(
 
 
 def _candidate(
-    effects: Sequence[str], fit: RigData, val: RigData, linear: dict[str, float]
+    effects: Sequence[str],
+    fit: RigData,
+    val: RigData,
+    linear: dict[str, float],
+    fit_mass: bool = True,
 ) -> CandidateFit:
-    model, z, cov, _ = fit_rig_model(effects, fit, linear)
+    model, z, cov, _ = fit_rig_model(effects, fit, linear, fit_mass=fit_mass)
     std = np.sqrt(np.clip(np.diag(cov), 0, None))
     res_fit, _ = _residual_and_jac(model, z, fit)
     res_val, _ = _residual_and_jac(model, z, val)
@@ -283,8 +554,19 @@ class RigDiagnosis:
     data: RigData
     split_index: int
     unexplained: dict | None
+    inertia_kept: bool = True
 
     def to_dict(self) -> dict:
+        """The JSON of ``fielddiag diagnose`` in rig mode.
+
+        Returns
+        -------
+        dict
+            ``mode``, ``verdict``, ``baseline``, ``augmented``, ``parameters``,
+            ``findings``, ``candidates``, ``validation``, ``band`` (the filter, its
+            cut-off, the motion edge, coherent band, resonance, whether the moving mass
+            is in the model, and why) and ``warnings``.
+        """
         sel = self.selection
         base, chosen = sel.baseline, sel.chosen
         verdict = "adequate" if (chosen is base and self.unexplained is None) else "missing_physics"
@@ -349,8 +631,21 @@ class RigDiagnosis:
                 for c, cmp in sel.ranking
             ],
             "validation": {"split_time_s": float(self.data.time_s[self.split_index])},
+            "band": self._band(),
             "warnings": [],
         }
+
+    def _band(self) -> dict:
+        band = self.data.band
+        out = band.to_dict() if band is not None else {"filter": "none", "cutoff_hz": None,
+                                                       "reason": "samples given as is"}
+        out["inertia_kept"] = self.inertia_kept
+        out["inertia"] = (
+            "the moving mass is in the model (inertia shows in the force)"
+            if self.inertia_kept
+            else "no inertia in the force at these frequencies: the moving mass is fixed at 0"
+        )
+        return out
 
     def _region(self, cand: CandidateFit) -> dict | None:
         base = self.selection.baseline
@@ -435,6 +730,27 @@ def diagnose_rig(
 ) -> RigDiagnosis:
     """Fit the linear rig model and every candidate (single effects and pairs), and choose.
 
+    Every model is fitted on the first part of the record and scored on the rest, with
+    the rule of :mod:`fielddiag.diagnose.selection` (and, where the linear model stands,
+    once more on whitened held-out residuals). The moving mass is fitted only where the
+    data show inertia (:func:`inertia_shown`).
+
+    Parameters
+    ----------
+    data : RigData
+        The record, in its band (:func:`rig_data_from_displacement`,
+        :func:`rig_data_from_acceleration`).
+    effects : sequence of str
+        Candidate effects (library names).
+    holdout_fraction : float
+        Fraction of the record, at its end, held out for validation.
+    max_pair : bool
+        Also try every pair of effects.
+
+    Returns
+    -------
+    RigDiagnosis
+
     Raises
     ------
     InsufficientDataError
@@ -449,15 +765,114 @@ def diagnose_rig(
     split = int(round(data.n * (1 - holdout_fraction)))
     fit, val = data.part(0, split), data.part(split, data.n)
     baseline = _candidate((), fit, val, {})
+    fit_mass = inertia_shown(baseline, fit)
+    if not fit_mass:
+        baseline = _candidate((), fit, val, {}, fit_mass=False)
     linear = {k: v for k, v in baseline.values.items()}
     linear["f0"], linear["m"] = baseline.values["preload_n"], baseline.values["moving_mass_kg"]
     combos: list[tuple[str, ...]] = [(e,) for e in effects]
     if max_pair:
         combos += [c for c in itertools.combinations(effects, 2)]
-    candidates = [_candidate(c, fit, val, linear) for c in combos]
-    sel = select_model(baseline, candidates)
+    candidates = [_candidate(c, fit, val, linear, fit_mass) for c in combos]
+    sel = _select_whitened(baseline, candidates, fit)
     unexplained = _unexplained_structure(baseline, sel.chosen, fit, val)
-    return RigDiagnosis(sel, data, split, unexplained)
+    return RigDiagnosis(sel, data, split, unexplained, fit_mass)
+
+
+#: Order of the autoregressive whitening filter of the held-out comparison.
+WHITENING_ORDER = 12
+
+
+def whitening_filter(residual: np.ndarray, order: int = WHITENING_ORDER) -> np.ndarray:
+    """Prediction-error filter ``[1, -a1, ..., -ap]`` of an autoregressive model of a
+    residual (Yule-Walker), which turns it into nearly white noise.
+
+    Parameters
+    ----------
+    residual : numpy.ndarray
+        The linear model's residual on the fitted part.
+    order : int
+        Autoregressive order.
+
+    Returns
+    -------
+    numpy.ndarray
+        FIR coefficients (``[1.0]`` when the record is too short or the residual zero).
+    """
+    from scipy.linalg import solve_toeplitz
+
+    r = np.asarray(residual, float) - float(np.mean(residual))
+    if r.size < 20 * order or not np.any(r):
+        return np.array([1.0])
+    acf = np.array([r[: r.size - k] @ r[k:] for k in range(order + 1)]) / r.size
+    try:
+        a = solve_toeplitz(acf[:-1], acf[1:])
+    except np.linalg.LinAlgError:
+        return np.array([1.0])
+    return np.concatenate(([1.0], -a)) if np.all(np.isfinite(a)) else np.array([1.0])
+
+
+def _select_whitened(baseline: CandidateFit, candidates: list[CandidateFit], fit: RigData
+                     ) -> Selection:
+    """:func:`select_model` on the plain held-out residuals; where the linear model stands
+    there, once more on residuals whitened by one filter (from the linear model's residual
+    on the fitted part), then the plain residuals put back.
+
+    Sensor noise reaches the force residual coloured (displacement noise through ``m a``
+    grows as ``w^2``), so a few noisy frequencies can dominate the block test and hide a
+    weak effect; whitening, one linear filter for every candidate, weighs all frequencies
+    by their noise. Where the residual is model error rather than noise (a real damper's
+    hysteresis) whitening weighs the wrong thing, hence the plain test first."""
+    from scipy.signal import lfilter
+
+    plain_sel = select_model(baseline, candidates)
+    if plain_sel.chosen is not baseline:
+        return plain_sel
+    res_fit, _ = _residual_and_jac(baseline.extra["model"], baseline.extra["z"], fit)
+    w = whitening_filter(res_fit)
+    if w.size == 1:
+        return plain_sel
+    plain = {id(c): c.residual_validation for c in (baseline, *candidates)}
+    for c in (baseline, *candidates):
+        c.residual_validation = lfilter(w, [1.0], plain[id(c)])[w.size:]
+    try:
+        white_sel = select_model(baseline, candidates)
+    finally:
+        for c in (baseline, *candidates):
+            c.residual_validation = plain[id(c)]
+    return white_sel if white_sel.chosen is not baseline else plain_sel
+
+
+def inertia_shown(baseline: CandidateFit, fit: RigData) -> bool:
+    """Do the data show the moving mass? Its estimate (linear model with mass) must be
+    at least 3 standard deviations above zero and its force ``m a`` at least
+    :data:`MIN_INERTIA_SHARE` of the force's spread; and the frequency response must
+    show it: a resonance, or ``Re(F/X)`` falling as ``k - m w^2`` with a mass within a
+    factor 2 of the time-domain one.
+
+    Parameters
+    ----------
+    baseline : CandidateFit
+        The linear model fitted with the mass free.
+    fit : RigData
+        The fitted samples.
+
+    Returns
+    -------
+    bool
+    """
+    m = baseline.values["moving_mass_kg"]
+    sd = baseline.std.get("moving_mass_kg", np.inf)
+    share = m * float(np.std(fit.acceleration)) / max(float(np.std(fit.force)), 1e-300)
+    if not (m > 3.0 * sd and share >= MIN_INERTIA_SHARE):
+        return False
+    band = fit.band
+    if band is None or band.resonance_hz is not None:
+        return True
+    # without a resonance, the frequency response must show the same mass: Re(F/X)
+    # falling as k - m w^2 (a mass that only soaks up unmodelled force, such as an MR
+    # damper's hysteresis on a sinusoidal stroke, does not)
+    return band.frf_mass is not None and 0.5 <= band.frf_mass / m <= 2.0
 
 
 def rig_data_from_session(reader) -> RigData:
