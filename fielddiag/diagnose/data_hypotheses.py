@@ -35,8 +35,9 @@ MIN_Z = 2.0
 #: chosen when it predicts the held-out data at all better (t >= :data:`MIN_T_SIGNIFICANT`),
 #: even below the gain per parameter a physical effect must show: the linear model
 #: absorbs a small gain change in its mass and stiffness (that is the bias it causes), so
-#: its held-out gain is small while the estimate itself is decisive. Calibrated on linear
-#: pairs drawn with fresh seeds: the gain's z has a std of 0.8, the delay's 0.6.
+#: its held-out gain is small while the estimate itself is decisive. On linear pairs drawn
+#: with fresh seeds the gain's z has a std of about 1 (its std inflation calibrated so),
+#: the delay's 0.6-0.7 (conservative).
 DECISIVE_Z = 3.0
 MIN_T_SIGNIFICANT = 1.0
 #: ... and at least this large (below it no recording would be worth correcting).
