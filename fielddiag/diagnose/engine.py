@@ -40,6 +40,8 @@ from fielddiag.diagnose import data_checks
 from fielddiag.diagnose.data_hypotheses import (
     DECISIVE_Z,
     MIN_T_SIGNIFICANT,
+    MIN_TIME_OFFSET_S,
+    MIN_Z,
     DataHypothesis,
     correct_drives,
     from_transmissibility,
@@ -1106,12 +1108,17 @@ def diagnose_drives(
     physics_fit = next(f for f in fits if f.candidate is physics.chosen)
 
     # data problems compete with the physics: each is corrected and the models refitted
-    for hyp in fd.hypotheses if fd is not None else ():
+    hypotheses = list(fd.hypotheses) if fd is not None else []
+    if not any(h.kind == "channel_time_offset" for h in hypotheses):
+        found = _time_domain_offset(base)
+        if found is not None:
+            hypotheses.append(found)
+    for hyp in hypotheses:
         say(f"testing a {_DATA_LABEL[hyp.kind]} ({_data_size(hyp)}) against the physics")
         on = _with_ride_height([_prepare(d, band, rate, holdout_fraction)
                                 for d in correct_drives(drives, hyp)], physics_fit.restored)
         lin = grey((), on, _initial_from(base), hyp)
-        for _ in range(2 if hyp.kind == "channel_time_offset" else 0):
+        for _ in range(5 if hyp.kind == "channel_time_offset" else 0):
             if lin is None:
                 break
             # the transmissibility's phase slope is measured against a linear model that
@@ -1217,7 +1224,13 @@ def _decisive_data_problem(chosen: _Fit, fits: Sequence[_Fit]) -> _Fit:
                 or f.data.z < DECISIVE_Z or not f.candidate.physical):
             continue
         cmp = compare(chosen.candidate, f.candidate)
-        if cmp.t >= MIN_T_SIGNIFICANT and cmp.relative_gain > 0:
+        if f.data.kind == "sensor_gain_changed":
+            # the linear model absorbs a gain in its mass (the bias it causes), so held-out
+            # data hardly tell; a gain is what breaks |T| -> 1 below the body resonance,
+            # which no passive suspension does: decisive, unless it predicts worse
+            if cmp.t > -MIN_T_SIGNIFICANT:
+                return f
+        elif cmp.t >= MIN_T_SIGNIFICANT and cmp.relative_gain > 0:
             return f
     return chosen
 
@@ -1288,17 +1301,38 @@ def _clipping_competes(base: _Fit, chosen: _Fit, drives: Sequence[Drive]
                    "suspension. Record again with a larger measuring range")
 
 
-def _residual_delay_s(fit: _Fit, substeps: int) -> float:
+def _residual_delay_s(fit: _Fit, substeps: int, with_std: bool = False):
     """Delay of the recorded body acceleration against the fitted model's simulation on
-    the fit part of every drive (least squares on ``m(t) = s(t - tau)``, linearised)."""
+    the fit part of every drive (least squares on ``m(t) = s(t - tau)``, linearised).
+
+    With ``with_std``, ``(tau, std)``: the least-squares std inflated 3x for the residual's
+    correlation in time (a pre-selection only: held-out data decide)."""
     num = den = 0.0
+    parts = []
     for sf, measured, residual, _t in validation_runs(fit.result, [p.fit for p in fit.prepared],
                                                       substeps=substeps):
         sim = measured - residual
         ds = np.gradient(sim) * sf.sample_rate_hz
         num += float(residual @ ds)
         den += float(ds @ ds)
-    return -num / den if den > 0 else 0.0
+        parts.append((residual, ds))
+    tau = -num / den if den > 0 else 0.0
+    if not with_std:
+        return tau
+    rss = sum(float(np.sum((r + tau * d) ** 2)) for r, d in parts)
+    n = sum(r.size for r, _ in parts)
+    std = 3.0 * float(np.sqrt(rss / max(n - 1, 1) / den)) if den > 0 else np.inf
+    return tau, std
+
+
+def _time_domain_offset(base: _Fit) -> DataHypothesis | None:
+    """A channel time offset estimated against the linear model's simulation, for when
+    the transmissibilities give none (the identification refused the pair: a large
+    offset makes the drives look like two different cars)."""
+    tau, std = _residual_delay_s(base, substeps=2, with_std=True)
+    if abs(tau) >= MIN_TIME_OFFSET_S and abs(tau) >= MIN_Z * std:
+        return DataHypothesis("channel_time_offset", tau, std)
+    return None
 
 
 def _acts_on_position(fit: _Fit) -> bool:
