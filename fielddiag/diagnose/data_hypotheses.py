@@ -62,6 +62,12 @@ class DataHypothesis:
     kind: str
     value: float
     std: float
+    prior: DataHypothesis | None = None  # a problem corrected before this one
+
+    @property
+    def chain(self) -> list[DataHypothesis]:
+        """The problems corrected, in order: ``prior``'s chain, then this one."""
+        return [*(self.prior.chain if self.prior is not None else []), self]
 
     @property
     def z(self) -> float:
@@ -145,6 +151,8 @@ def correct_drives(drives: list[Any], hyp: DataHypothesis) -> list[Any]:
     list
         New drives (the inputs are not changed).
     """
+    if hyp.prior is not None:
+        drives = correct_drives(drives, hyp.prior)
     if hyp.kind == GAIN_CHANGE:
         last = drives[-1]
         return [*drives[:-1],
@@ -169,9 +177,10 @@ def residual_scale(hyp: DataHypothesis, index: int, n_drives: int) -> float:
     -------
     float
     """
+    scale = residual_scale(hyp.prior, index, n_drives) if hyp.prior is not None else 1.0
     if hyp.kind == GAIN_CHANGE and index == n_drives - 1:
-        return 1.0 + hyp.value
-    return 1.0
+        return scale * (1.0 + hyp.value)
+    return scale
 
 
 _MOVED = {

@@ -260,7 +260,7 @@ def _grey_fit(
     vals, stds = _values(result)
     fit_sessions = result.fit_sessions()
     nr_fit = float(np.sqrt(np.mean([s.nrmse**2 for s in fit_sessions])))
-    names = (*effects, data.kind) if data is not None else tuple(effects)
+    names = (*effects, *(h.kind for h in data.chain)) if data is not None else tuple(effects)
     cand = CandidateFit(
         effects=names,
         values=vals,
@@ -268,7 +268,7 @@ def _grey_fit(
         nrmse_fit=nr_fit,
         nrmse_validation=nrmse(res_val, meas_val),
         residual_validation=res_val,
-        n_params=model.n_params + (1 if data is not None else 0),
+        n_params=model.n_params + (len(data.chain) if data is not None else 0),
         at_bound=_pinned(result, model, effects),
         extra={"model": model, "data": data},
     )
@@ -439,14 +439,17 @@ class Diagnosis:
             or the body channel's delay [s]), its std and how correcting it moved M/K/C;
             empty when no data problem was chosen.
         """
-        hyp = self.chosen.data
-        if hyp is None:
+        if self.chosen.data is None:
             return []
         moved = self.chosen.candidate.extra.get("moved", "")
-        if hyp.kind == "sensor_gain_changed":
-            return [data_checks.gain_warning(self.drives[0].label, self.drives[-1].label,
-                                             hyp.value, hyp.std, moved)]
-        return [data_checks.time_offset_warning(hyp.value, hyp.std, moved)]
+        out = []
+        for hyp in self.chosen.data.chain:
+            if hyp.kind == "sensor_gain_changed":
+                out.append(data_checks.gain_warning(self.drives[0].label, self.drives[-1].label,
+                                                    hyp.value, hyp.std, moved))
+            else:
+                out.append(data_checks.time_offset_warning(hyp.value, hyp.std, moved))
+        return out
 
     def _finding(self, effect: str) -> dict:
         c = self.chosen.candidate
@@ -538,8 +541,9 @@ class Diagnosis:
             )
         # drives that do not behave like one corner with the mass added: a competing
         # hypothesis that a finding (a progressive spring, friction...) explains
-        warnings = [w.to_dict() for w in [*self.warnings, *self.data_problems()]
-                    if not (w.kind == "pair_inconsistent" and findings)]
+        problems = self.data_problems()
+        warnings = [w.to_dict() for w in [*self.warnings, *problems]
+                    if not (w.kind == "pair_inconsistent" and (findings or problems))]
         aug = base if chosen is base else chosen
         return {
             "mode": self.mode,
@@ -579,9 +583,8 @@ class Diagnosis:
             "holdout": "last 30 % of every drive",
             "ride_height": self.ride_height,
             "data_problems": [
-                {"kind": w.kind, "value": w.value,
-                 "std": self.chosen.data.std if self.chosen.data else None}
-                for w in self.data_problems()
+                {"kind": h.kind, "value": h.value, "std": h.std}
+                for h in (self.chosen.data.chain if self.chosen.data else [])
             ],
             "linear_model_adequate": self.linear_inadequate is None,
             **self.plot_data(),
@@ -678,9 +681,19 @@ def _data_warnings(drives: Sequence[Drive]) -> list[data_checks.DataWarning]:
 class _FrequencyDomain:
     """What the linear frequency-domain identification of a pair tells the diagnosis."""
 
-    linear: dict[str, float]  # sprung_mass_kg, stiffness, damping, coupling (SI)
+    linear: dict[str, float]  # sprung_mass_kg, stiffness, damping, coupling (SI); {} refused
     warnings: list[data_checks.DataWarning]
-    hypotheses: list[DataHypothesis]
+    transmissibility: list[dict] = field(default_factory=list)
+    band_hz: tuple[float, float] = (0.0, 0.0)
+    added_mass_kg: float = 0.0
+
+    def hypotheses(self, start: dict[str, float]) -> list[DataHypothesis]:
+        """The data hypotheses worth fitting (gain change, time offset), the gain's linear
+        fit started from ``start`` (SI values of the linear model)."""
+        if not self.transmissibility:
+            return []
+        return from_transmissibility(self.transmissibility, self.band_hz,
+                                     self.added_mass_kg, start)
 
 
 def _frequency_domain(drives: Sequence[Drive]) -> _FrequencyDomain:
@@ -702,15 +715,24 @@ def _frequency_domain(drives: Sequence[Drive]) -> _FrequencyDomain:
         for d in drives
     ]
     dm = drives[1].added_mass_kg - drives[0].added_mass_kg
+    refused = False
     try:
         ident = identify_recordings(recs[0], recs[1], dm)
     except FieldDiagError as exc:
         # Only a lack of excitation is a problem of the data; the linear identification
-        # also refuses when the physics is not linear, which is the diagnosis's own subject.
+        # also refuses when the physics is not linear, which is the diagnosis's own subject,
+        # or when a data problem (a gain change, a delay) makes the drives look like two
+        # cars: its spectra still estimate those
         if "excitation" in str(exc):
             return _FrequencyDomain({}, [data_checks.DataWarning("too_little_excitation",
-                                                                 str(exc))], [])
-        return _FrequencyDomain({}, [], [])
+                                                                 str(exc))])
+        try:
+            from fielddiag.identify import IdentifyConfig
+            ident = identify_recordings(recs[0], recs[1], dm,
+                                        config=IdentifyConfig(refuse=False))
+        except Exception:  # noqa: BLE001 - no spectra: the physics competes alone
+            return _FrequencyDomain({}, [])
+        refused = True
     trs = [
         {
             "freq_hz": tr.freq_hz,
@@ -732,8 +754,8 @@ def _frequency_domain(drives: Sequence[Drive]) -> _FrequencyDomain:
         )
     }
     warnings = [data_checks.DataWarning("pair_inconsistent", w) for w in ident.warnings
-                if w.startswith(PAIR_INCONSISTENT)]
-    return _FrequencyDomain(linear, warnings, from_transmissibility(trs, band, dm, linear))
+                if w.startswith(PAIR_INCONSISTENT) and not refused]
+    return _FrequencyDomain({} if refused else linear, warnings, trs, band, dm)
 
 
 def _linear_start(fd: _FrequencyDomain | None) -> tuple[dict[str, float] | None,
@@ -1107,32 +1129,13 @@ def diagnose_drives(
     physics = select_model(base.candidate, [f.candidate for f in fits[1:]])
     physics_fit = next(f for f in fits if f.candidate is physics.chosen)
 
-    # data problems compete with the physics: each is corrected and the models refitted
-    hypotheses = list(fd.hypotheses) if fd is not None else []
-    if not any(h.kind == "channel_time_offset" for h in hypotheses):
-        found = _time_domain_offset(base)
-        if found is not None:
-            hypotheses.append(found)
-    for hyp in hypotheses:
-        say(f"testing a {_DATA_LABEL[hyp.kind]} ({_data_size(hyp)}) against the physics")
+    def test_data(hyp: DataHypothesis) -> _Fit | None:
+        """Correct the drives for ``hyp`` and refit the linear model and the physics."""
         on = _with_ride_height([_prepare(d, band, rate, holdout_fraction)
                                 for d in correct_drives(drives, hyp)], physics_fit.restored)
         lin = grey((), on, _initial_from(base), hyp)
-        for _ in range(5 if hyp.kind == "channel_time_offset" else 0):
-            if lin is None:
-                break
-            # the transmissibility's phase slope is measured against a linear model that
-            # absorbed part of the delay: refine it on the fit part of the corrected drives
-            step = _residual_delay_s(lin, substeps=2)
-            if abs(step) <= hyp.std:
-                break
-            hyp = replace(hyp, value=hyp.value + step)
-            say(f"  refined to {_data_size(hyp)}")
-            on = _with_ride_height([_prepare(d, band, rate, holdout_fraction)
-                                    for d in correct_drives(drives, hyp)], physics_fit.restored)
-            lin = grey((), on, _initial_from(lin), hyp)
         if lin is None:
-            continue
+            return None
         lin.candidate.extra["moved"] = moved_text(
             _linear_summary(base.candidate.values, mode), _linear_summary(lin.candidate.values,
                                                                           mode))
@@ -1142,10 +1145,53 @@ def diagnose_drives(
             if both is not None:
                 both.candidate.extra["moved"] = lin.candidate.extra["moved"]
                 fits.append(both)
+        return lin
+
+    # data problems compete with the physics: each is corrected and the models refitted
+    hypotheses = []
+    if fd is not None:
+        lin = fd.linear or {_LINEAR_SI[k]: v for k, v in base.candidate.values.items()
+                            if k in _LINEAR_SI}
+        hypotheses = fd.hypotheses(lin)
+    if not any(h.kind == "channel_time_offset" for h in hypotheses):
+        found = _time_domain_offset(base)
+        if found is not None:
+            hypotheses.append(found)
+    offset_fit = None
+    for hyp in hypotheses:
+        say(f"testing a {_DATA_LABEL[hyp.kind]} ({_data_size(hyp)}) against the physics")
+        if hyp.kind == "channel_time_offset":
+            # the transmissibility's phase slope is measured against a linear model that
+            # absorbed part of the delay: refine it on the fit part of the corrected drives
+            for _ in range(5):
+                on = [_prepare(d, band, rate, holdout_fraction)
+                      for d in correct_drives(drives, hyp)]
+                trial = grey((), on, _initial_from(base), hyp)
+                if trial is None:
+                    break
+                step = _residual_delay_s(trial, substeps=2)
+                if abs(step) <= hyp.std:
+                    break
+                hyp = replace(hyp, value=hyp.value + step)
+                say(f"  refined to {_data_size(hyp)}")
+        lin = test_data(hyp)
+        if lin is not None and hyp.kind == "channel_time_offset":
+            offset_fit = lin
+    if fd is not None and offset_fit is not None:
+        # a gain change hides behind a delay in the transmissibilities: estimated again
+        # on the drives corrected for the delay, and tested on top of it
+        fd2 = _frequency_domain(correct_drives(drives, offset_fit.data))
+        start = fd2.linear or {_LINEAR_SI[k]: v for k, v in offset_fit.candidate.values.items()
+                               if k in _LINEAR_SI}
+        for g in fd2.hypotheses(start):
+            if g.kind == "sensor_gain_changed":
+                g = replace(g, prior=offset_fit.data)
+                say(f"testing a {_DATA_LABEL[g.kind]} ({_data_size(g)}) on top of the "
+                    "time offset")
+                test_data(g)
     sel = select_model(base.candidate, [f.candidate for f in fits[1:]])
     chosen = next(f for f in fits if f.candidate is sel.chosen)
-    if chosen.data is None:
-        chosen = _decisive_data_problem(chosen, fits)
+    chosen = _decisive_data_problem(chosen, fits)
     if chosen.physics and chosen.physics != physics_fit.physics and chosen.data is not None:
         # a data problem plus physics the uncorrected data did not choose: fine, but say so
         say(f"  with the {_DATA_LABEL[chosen.data.kind]} corrected: "
@@ -1210,6 +1256,13 @@ def diagnose_drives(
     )
 
 
+_LINEAR_SI = {
+    "body_mass_kg": "sprung_mass_kg",
+    "linear_spring.suspension_stiffness_n_per_m": "suspension_stiffness_n_per_m",
+    "linear_damper.suspension_damping_ns_per_m": "suspension_damping_ns_per_m",
+    "coupling_spring.coupling_stiffness_n_per_m": "coupling_stiffness_n_per_m",
+}
+
 _DATA_LABEL = {
     "sensor_gain_changed": "sensor gain change between the drives",
     "channel_time_offset": "time offset between the wheel and body channels",
@@ -1217,11 +1270,13 @@ _DATA_LABEL = {
 
 
 def _decisive_data_problem(chosen: _Fit, fits: Sequence[_Fit]) -> _Fit:
-    """A data problem estimated decisively (:data:`~.data_hypotheses.DECISIVE_Z`) that
-    also predicts the held-out data better than the chosen model it corrects."""
+    """A data problem estimated decisively (:data:`~.data_hypotheses.DECISIVE_Z`), on top
+    of what the chosen model corrects, that also predicts the held-out data better."""
     for f in fits:
-        if (f.data is None or f.physics != chosen.physics or f.restored != chosen.restored
-                or f.data.z < DECISIVE_Z or not f.candidate.physical):
+        # one more data problem on top of what the chosen model corrects already
+        if (f.data is None or f.data.prior != chosen.data or f.physics != chosen.physics
+                or f.restored != chosen.restored or f.data.z < DECISIVE_Z
+                or not f.candidate.physical):
             continue
         cmp = compare(chosen.candidate, f.candidate)
         if f.data.kind == "sensor_gain_changed":

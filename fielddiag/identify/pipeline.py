@@ -123,6 +123,11 @@ class IdentifyConfig:
         batch runs that need only the numbers can switch it off.
     max_plot_lines : int
         Frequency lines kept in the transmissibility arrays of the result.
+    refuse : bool
+        Refuse a pair whose drives do not behave like one corner, or whose mass is not
+        resolved (the default: no number is better than a wrong one). False returns
+        whatever the fit gives, with the warnings: the diagnosis uses the spectra of such
+        a pair to estimate the data problems that may be the reason.
     """
 
     segment_s: float | None = None
@@ -138,6 +143,7 @@ class IdentifyConfig:
     hysteresis_freqs_hz: tuple[float, ...] | None = None
     display: bool = True
     max_plot_lines: int = 400
+    refuse: bool = True
 
 
 # ---------------------------------------------------------------------------------------
@@ -480,19 +486,21 @@ def identify_recordings(
             "friction or a progressive spring change the equivalent damping and stiffness "
             f"with the load and the amplitude): {diagnose_hint}")
     mismatch = [w for w in warnings if w.startswith(PAIR_INCONSISTENT)]
-    if mismatch and not (m2 > 0 and k2 > 0 and main.std[0] < 0.2 * m2):
+    if not cfg.refuse:
+        pass  # the caller wants the spectra and the fit whatever they say (the diagnosis)
+    elif mismatch and not (m2 > 0 and k2 > 0 and main.std[0] < 0.2 * m2):
         # the best explanation of a hopeless fit: the drives do not behave as one corner
         raise InsufficientDataError(
             "no sprung mass can be given: " + mismatch[0].replace(
                 "and these values do not hold: ", ""))
-    if not (m2 > 0 and k2 > 0 and np.all(np.isfinite(main.theta))):
+    elif not (m2 > 0 and k2 > 0 and np.all(np.isfinite(main.theta))):
         raise InsufficientDataError(
             f"the fit gives no physical answer (M2 {m2:.4g} kg, K2 {k2:.4g} N/m): the added mass"
             f" of {dm:g} kg does not shift the transmissibility measurably, or the linear model "
             f"does not describe these drives. Add more mass (10-30 % of the corner load), "
             f"record longer or on a rougher road, or {diagnose_hint}")
-    rel = main.std[0] / m2
-    if not math.isfinite(rel) or rel > cfg.max_relative_std_mass:
+    rel = main.std[0] / m2 if m2 else math.inf
+    if cfg.refuse and (not math.isfinite(rel) or rel > cfg.max_relative_std_mass):
         value = (f"{m2:.4g} +- {main.std[0]:.3g} kg ({100 * rel:.0f} % std, more than "
                  f"{100 * cfg.max_relative_std_mass:.0f} %)" if rel < 1.0
                  else "its standard deviation exceeds the value itself")

@@ -263,4 +263,7 @@ def serve(
         show_welcome_message=False,
         favicon="🚗",
         uvicorn_logging_level="warning",
+        # long numeric jobs run in worker threads; on a loaded 2-core machine the event
+        # loop can wait seconds for the GIL, and nicegui's default 3 s would drop the page
+        reconnect_timeout=30.0,
     )
