@@ -164,3 +164,49 @@ def test_choose_integration_band_and_peaks():
     pk = dsp.find_spectral_peaks(f, mag, max_peaks=1)
     # a resonance at 7.33 Hz with damping ratio 0.1: peak at 7.33 sqrt(1 - 2 * 0.1^2)
     assert pk[0][0] == pytest.approx(7.33 * np.sqrt(1 - 2 * 0.01), abs=0.02)
+
+
+def test_spectrum_on_grid_is_exact_for_linear_spectra_and_nan_outside():
+    f = np.linspace(0.0, 50.0, 401)  # 0.125 Hz lines
+    g = np.array([-1.0, 0.0, 3.3, 17.06, 50.0, 50.1])
+    real = 2.0 + 0.3 * f
+    np.testing.assert_allclose(dsp.spectrum_on_grid(f, real, g)[1:5], 2.0 + 0.3 * g[1:5],
+                               rtol=1e-12)
+    comp = (1.0 - 0.1 * f) + 1j * (0.5 + 0.02 * f)
+    out = dsp.spectrum_on_grid(f, comp, g)
+    assert np.iscomplexobj(out) and not np.iscomplexobj(dsp.spectrum_on_grid(f, real, g))
+    np.testing.assert_allclose(out[1:5], (1.0 - 0.1 * g[1:5]) + 1j * (0.5 + 0.02 * g[1:5]),
+                               rtol=1e-12)
+    # nothing is extrapolated
+    assert np.isnan(out[0]) and np.isnan(out[-1])
+    assert np.isnan(dsp.spectrum_on_grid(f, real, g)[[0, -1]]).all()
+
+
+def test_spectrum_on_grid_between_two_sample_rates_within_the_interpolation_bound():
+    """The transmissibility of a 1.3 Hz, 30 % damped body on the Welch lines of a 500 Hz
+    drive, moved to those of a 500.001 Hz drive. Linear interpolation at a distance d from
+    a line errs by at most d (h - d) / 2 max|T''| per part (h = 0.125 Hz): h^2/8 max|T''|
+    half-way between lines, and here, where line k moves by only k x 2.5e-7 Hz, by far
+    less."""
+    def t_of(freq):
+        s = 2j * np.pi * freq
+        wn = 2 * np.pi * 1.3
+        return (2 * 0.3 * wn * s + wn**2) / (s * s + 2 * 0.3 * wn * s + wn**2)
+
+    f_a = np.fft.rfftfreq(4000, 1 / 500.0)  # 8 s segments at 500 Hz
+    f_b = np.fft.rfftfreq(4000, 1 / 500.001)
+    h = f_a[1] - f_a[0]
+    fine = np.linspace(0, 250, 200001)
+    d2max = np.abs(np.gradient(np.gradient(t_of(fine), fine), fine)).max()
+    moved = dsp.spectrum_on_grid(f_a, t_of(f_a), f_b)
+    ok = ~np.isnan(moved)
+    assert ok.sum() == f_b.size - 1  # only the top line of b lies beyond a's last line
+    d = f_b[ok] - f_a[ok]
+    bound = d * (h - d) / 2 * d2max * np.sqrt(2)  # real and imaginary parts together
+    assert np.all(np.abs(moved[ok] - t_of(f_b[ok])) <= bound + 1e-15)
+    # half-way between lines the error is of the order of the bound h^2/8 max|T''|
+    mid = f_a[:-1] + h / 2
+    err_mid = np.abs(dsp.spectrum_on_grid(f_a, t_of(f_a), mid) - t_of(mid)).max()
+    assert 0.25 * h**2 / 8 * d2max <= err_mid <= h**2 / 8 * d2max * np.sqrt(2)
+    # on a spectrum sampled at the grid itself the result is the identity
+    np.testing.assert_array_equal(dsp.spectrum_on_grid(f_a, t_of(f_a), f_a), t_of(f_a))

@@ -142,8 +142,9 @@ def excess_band(
         return None
     cdf = np.cumsum(excess) / total
     q = (1.0 - fraction) / 2.0
-    lo = float(f[np.searchsorted(cdf, q)])
-    hi = float(f[min(np.searchsorted(cdf, 1.0 - q), f.size - 1)])
+    # fraction = 1 (q = 0): the first and last lines holding power, not f[0] and f[-1]
+    lo = float(f[np.searchsorted(cdf, max(q, 1e-12))])
+    hi = float(f[min(np.searchsorted(cdf, min(1.0 - q, 1.0 - 1e-12)), f.size - 1)])
     return lo, hi
 
 

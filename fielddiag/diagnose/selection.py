@@ -82,7 +82,8 @@ def paired_block_t(
         ]
     )
     sd = float(d.std(ddof=1))
-    if sd == 0.0:
+    # equal log ratios give sd of a few ulp (the mean of equal numbers is not exact)
+    if sd <= 1e-12 * abs(float(d.mean())) or sd == 0.0:
         return np.inf if d.mean() > 0 else 0.0
     return float(d.mean() / (sd / np.sqrt(k)))
 

@@ -341,10 +341,13 @@ def hysteresis_loops(
             continue
         c = np.concatenate(([0.0], np.cumsum(filt[0] ** 2)))
         r2 = c[n_win:] - c[:-n_win]  # moving sum of r^2 over n_win samples
-        margin = min(n_win, r2.size // 4)
+        # keep clear of the band-pass's edge transients: its envelope decays with a time
+        # constant of 1/(pi bw), so 2/bw leaves exp(-2 pi) = 0.2 % (n_win alone left ~5 %)
+        ring = int(math.ceil(2.0 / (hi - lo) * fs))
+        margin = min(max(n_win, ring), r2.size // 4)
         i0 = margin + int(np.argmax(r2[margin:r2.size - margin])) if r2.size > 2 * margin else 0
         sl = slice(i0, i0 + n_win)
-        step = max(1, n_win // max_points)
+        step = max(1, -(-n_win // max_points))  # ceil: at most max_points points
         out.append(HysteresisLoop(
             label=label, freq_hz=float(f0), band_hz=[float(lo), float(hi)],
             r_m=[float(v) for v in filt[0][sl][::step]],
