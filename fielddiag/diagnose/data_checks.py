@@ -280,16 +280,16 @@ def fit_gain_change(
     lines = [_weighted_lines(tr, band_hz, min_coherence) for tr in transmissibility]
     if min(w.size for w, _, _ in lines) < 8:
         return None
-    m0 = float(start.get("sprung_mass_kg", 380.0))
-    x0 = [
-        np.log(m0),
-        np.log(start.get("suspension_stiffness_n_per_m", 2.4e4)),
-        np.log(start.get("suspension_damping_ns_per_m", 1.8e3)),
-        start.get("coupling_stiffness_n_per_m", 0.0)
-        / start.get("suspension_stiffness_n_per_m", 2.4e4),
-    ]
-    if not np.all(np.isfinite(x0)):
-        return None
+
+    def positive(key: str, typical: float) -> float:
+        v = float(start.get(key, typical))
+        return v if np.isfinite(v) and v > 0 else typical
+
+    m0 = positive("sprung_mass_kg", 380.0)
+    k0 = positive("suspension_stiffness_n_per_m", 2.4e4)
+    k3 = float(start.get("coupling_stiffness_n_per_m", 0.0))
+    x0 = [np.log(m0), np.log(k0), np.log(positive("suspension_damping_ns_per_m", 1.8e3)),
+          k3 / k0 if np.isfinite(k3) else 0.0]
 
     def joint(x, with_gain: bool):
         m, k, c = np.exp(x[:3])

@@ -100,10 +100,17 @@ def from_transmissibility(trs: list[dict], band_hz: tuple[float, float],
     from fielddiag.diagnose import data_checks
 
     out = []
-    g = data_checks.fit_gain_change(trs, band_hz, added_mass_kg=added_mass_kg, start=start)
+    try:
+        g = data_checks.fit_gain_change(trs, band_hz, added_mass_kg=added_mass_kg,
+                                        start=start)
+    except (ValueError, ZeroDivisionError, FloatingPointError, np.linalg.LinAlgError):
+        g = None  # no estimate: the physics competes without this hypothesis
     if g is not None and abs(g.change) >= MIN_GAIN_CHANGE and abs(g.change) >= MIN_Z * g.std:
         out.append(DataHypothesis(GAIN_CHANGE, g.change, g.std))
-    tau = data_checks.fit_time_offset(trs, band_hz)
+    try:
+        tau = data_checks.fit_time_offset(trs, band_hz)
+    except (ValueError, np.linalg.LinAlgError):
+        tau = None
     if tau is not None and abs(tau[0]) >= MIN_TIME_OFFSET_S and abs(tau[0]) >= MIN_Z * tau[1]:
         out.append(DataHypothesis(TIME_OFFSET, tau[0], tau[1]))
     return out
