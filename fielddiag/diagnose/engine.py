@@ -1196,7 +1196,7 @@ def diagnose_drives(
         # a data problem plus physics the uncorrected data did not choose: fine, but say so
         say(f"  with the {_DATA_LABEL[chosen.data.kind]} corrected: "
             f"{' + '.join(chosen.physics)}")
-    clip_note = _clipping_competes(base, chosen, drives) if chosen.physics else None
+    clip_note = _clipping_competes(base, chosen, drives) if chosen is not base else None
     if clip_note is not None:
         say("  " + clip_note[1])
         chosen = chosen if clip_note[0] else base
@@ -1208,7 +1208,8 @@ def diagnose_drives(
             fits.append(other)
     say("looking for structure no effect explains")
     unexplained, _ = _unexplained(chosen, chosen.prepared, coupling, base, say, known=tried)
-    if unexplained is not None and any(w.kind == "clipping" for w in warnings):
+    if (unexplained is not None and any(w.kind == "clipping" for w in warnings)
+            and not any(w.kind == "clipping_explains" for w in warnings)):
         # clipping competes: is the structure still there away from the clipped readings?
         near = _near_clipping(chosen.runs, drives)
         share = float(near.mean()) if near is not None else 0.0
@@ -1340,12 +1341,12 @@ def _clipping_competes(base: _Fit, chosen: _Fit, drives: Sequence[Drive]
     share_e = float(np.sum(eb[near] ** 2) / np.sum(eb**2))
     if share_t > CLIP_DOMINATES:
         return False, (f"{100 * share_t:.0f} % of the held-out data lie near clipped "
-                       f"readings: the mismatch ({' + '.join(chosen.physics)}) cannot be told "
+                       f"readings: the mismatch ({' + '.join(chosen.effects)}) cannot be told "
                        "from the clipping, which is the simpler explanation. Record again "
                        "with a larger measuring range")
     t = paired_block_t(eb[~near], ec[~near])
     gain = 1.0 - float(np.mean(ec[~near] ** 2) / np.mean(eb[~near] ** 2))
-    found = " + ".join(chosen.physics)
+    found = " + ".join(e.replace("_", " ") for e in chosen.effects)
     head = (f"{100 * share_e:.0f} % of the linear model's held-out misfit lies within "
             f"{CLIP_REACH_S:g} s of clipped readings ({100 * share_t:.0f} % of the time)")
     if t >= 3.0 and gain > 0:
