@@ -1208,8 +1208,7 @@ def diagnose_drives(
             fits.append(other)
     say("looking for structure no effect explains")
     unexplained, _ = _unexplained(chosen, chosen.prepared, coupling, base, say, known=tried)
-    if (unexplained is not None and any(w.kind == "clipping" for w in warnings)
-            and not any(w.kind == "clipping_explains" for w in warnings)):
+    if unexplained is not None and any(w.kind == "clipping" for w in warnings):
         # clipping competes: is the structure still there away from the clipped readings?
         near = _near_clipping(chosen.runs, drives)
         share = float(near.mean()) if near is not None else 0.0
@@ -1222,11 +1221,12 @@ def diagnose_drives(
             unexplained = None
             where = ("cannot be told from the clipping, the simpler explanation"
                      if share > CLIP_DOMINATES else "is not found away from them")
-            warnings.append(data_checks.DataWarning(
+            said = any(w.kind == "clipping_explains" for w in warnings)
+            warnings += [] if said else [data_checks.DataWarning(
                 "clipping_explains", "the structure left in the residual sits near the "
                 f"clipped readings ({100 * share:.0f} % of the held-out data are near them) "
                 f"and {where}: the clipping explains the mismatch. Record again with a "
-                "larger measuring range"))
+                "larger measuring range")]
             if share > CLIP_DOMINATES:
                 hopeless = hopeless or (
                     "the values of the linear model are not reliable: the clipped readings "
