@@ -176,7 +176,7 @@ MR_RECORDS = [("ensaio10", "ensaio11"), ("ensaio3.1", "ensaio3"),
 
 
 def _mr(name):
-    from tests._real_data import MR_DAMPER
+    from _real_data import MR_DAMPER
 
     path = MR_DAMPER / f"{name}.csv"
     if not path.exists():

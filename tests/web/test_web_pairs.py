@@ -91,11 +91,12 @@ def test_identification_preselects_the_partner_by_vehicle_not_by_name(
     assert js_errors(d) == []
 
 
-@pytest.mark.xfail(strict=False, reason=(
+@pytest.mark.xfail(run=False, reason=(
     "known bug, open: after a session page was shown, the diagnosis page started from it "
     "stops receiving updates a few seconds into its job (the job finishes, the server is "
     "idle, the socket stays connected; the same diagnosis started on a freshly loaded "
-    "diagnosis page completes). Reproduced on the commit before this session's work"))
+    "diagnosis page completes). Reproduced on the commit before this session's work; not "
+    "run: it would only wait out its 240 s"))
 def test_diagnosis_opened_from_a_session_keeps_the_pair(page, sessions_root: Path,
                                                         server_of) -> None:
     if not diagnosis_backend().available:
