@@ -357,16 +357,8 @@ def check_gain_change(
 
     Parameters
     ----------
-    transmissibility : list of dict
-        Two drives' ``freq_hz``, ``measured`` (complex T), ``coherence`` and ``label``.
-    band_hz : (float, float)
-        Lines used [Hz].
-    added_mass_kg : float
-        Mass added for the second drive [kg].
-    start : dict
-        Linear model start values (as :func:`fit_gain_change`).
-    min_coherence : float
-        Lines below it are left out.
+    transmissibility, band_hz, added_mass_kg, start, min_coherence
+        As :func:`fit_gain_change`.
     min_change : float
         Smallest relative gain change reported (0.03 = 3 %).
 

@@ -1196,7 +1196,9 @@ def diagnose_drives(
         # a data problem plus physics the uncorrected data did not choose: fine, but say so
         say(f"  with the {_DATA_LABEL[chosen.data.kind]} corrected: "
             f"{' + '.join(chosen.physics)}")
-    clip_note = _clipping_competes(base, chosen, drives) if chosen is not base else None
+    clipped = _clipped_times(drives)
+    clip_note = (_clipping_competes(base, chosen, clipped)
+                 if chosen is not base and any(t.size for t in clipped.values()) else None)
     if clip_note is not None:
         say("  " + clip_note[1])
         chosen = chosen if clip_note[0] else base
@@ -1210,13 +1212,13 @@ def diagnose_drives(
     unexplained, _ = _unexplained(chosen, chosen.prepared, coupling, base, say, known=tried)
     if unexplained is not None and any(w.kind == "clipping" for w in warnings):
         # clipping competes: is the structure still there away from the clipped readings?
-        near = _near_clipping(chosen.runs, drives)
+        near = _near_clipping(chosen.runs, clipped)
         share = float(near.mean()) if near is not None else 0.0
         away = unexplained
         if share <= CLIP_DOMINATES:
             say("  again, away from the clipped readings")
             away, _ = _unexplained(chosen, chosen.prepared, coupling, base, say, known=tried,
-                                   exclude=_clipped_near)
+                                   exclude=lambda d, t: _near(clipped[d.label], t))
         if away is None or share > CLIP_DOMINATES:
             unexplained = None
             where = ("cannot be told from the clipping, the simpler explanation"
@@ -1305,18 +1307,23 @@ CLIP_REACH_S = 0.25
 CLIP_DOMINATES = 0.5
 
 
-def _near_clipping(runs: list, drives: Sequence[Drive]) -> np.ndarray | None:
+def _clipped_times(drives: Sequence[Drive]) -> dict[str, np.ndarray]:
+    """Times of the clipped readings (either channel) of every drive, by drive label:
+    one pass over the recordings, shared by every comparison that leaves them out."""
+    return {d.label: d.time_s[data_checks.clipped_mask(d.wheel_accel_mps2)
+                              | data_checks.clipped_mask(d.body_accel_mps2)] for d in drives}
+
+
+def _near_clipping(runs: list, clipped: dict[str, np.ndarray]) -> np.ndarray | None:
     """Per held-out residual sample: near a clipped reading (None: nothing clipped)."""
-    near = [_clipped_near(d, t) for (_sf, _m, _r, t), d in zip(runs, drives, strict=True)]
+    near = [_near(clipped[label], t) for (_sf, _m, _r, t), label in zip(runs, clipped,
+                                                                         strict=True)]
     out = np.concatenate(near)
     return out if out.any() else None
 
 
-def _clipped_near(drive: Drive, time_s: np.ndarray) -> np.ndarray:
-    """True at times within :data:`CLIP_REACH_S` of a clipped reading of the drive."""
-    mask = data_checks.clipped_mask(drive.wheel_accel_mps2) | data_checks.clipped_mask(
-        drive.body_accel_mps2)
-    times = drive.time_s[mask]
+def _near(times: np.ndarray, time_s: np.ndarray) -> np.ndarray:
+    """True at ``time_s`` within :data:`CLIP_REACH_S` of any of ``times`` (sorted)."""
     if times.size == 0:
         return np.zeros(np.size(time_s), bool)
     i = np.clip(np.searchsorted(times, time_s), 1, times.size) - 1
@@ -1324,7 +1331,7 @@ def _clipped_near(drive: Drive, time_s: np.ndarray) -> np.ndarray:
     return np.minimum(np.abs(time_s - times[i]), np.abs(time_s - times[j])) <= CLIP_REACH_S
 
 
-def _clipping_competes(base: _Fit, chosen: _Fit, drives: Sequence[Drive]
+def _clipping_competes(base: _Fit, chosen: _Fit, clipped: dict[str, np.ndarray]
                        ) -> tuple[bool, str] | None:
     """Clipping as the competing explanation of a physical finding.
 
@@ -1333,7 +1340,7 @@ def _clipping_competes(base: _Fit, chosen: _Fit, drives: Sequence[Drive]
     the linear model, it stands, with the clipping named beside it; if not, the clipping
     explains the mismatch. Returns (finding stands, words), or None without clipping.
     """
-    near = _near_clipping(base.runs, drives)
+    near = _near_clipping(base.runs, clipped)
     if near is None or not near.any():
         return None
     eb, ec = base.candidate.residual_validation, chosen.candidate.residual_validation
