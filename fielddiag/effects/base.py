@@ -26,9 +26,9 @@ parameter values, an effect to simulate (``CoulombFriction(friction_force_n=80.0
 
 Effects with an internal state (hysteresis: Dahl, Bouc-Wen; a series top mount) set
 ``n_states`` > 0; their kernel then also receives the state ``z`` and writes its rate
-``dz/dt`` (see :class:`Effect`). The simulator integrates such states; the grey-box fit
-does not yet (it would need ``dF/dz`` and the derivatives of ``dz/dt`` in the sensitivity
-equations) and refuses them with a clear message.
+``dz/dt`` (see :class:`Effect`). The simulator, the grey-box fit and rig mode integrate
+the states along the motion (:meth:`ForceModel.force_along_path`); the fit takes the
+derivatives through a state by forward differences of the same discrete simulation.
 """
 
 from __future__ import annotations

@@ -28,8 +28,7 @@ class HystereticSpring(Effect):
     and the force on the body is ``-hysteretic_stiffness_n_per_m * z``: stiffness
     ``hysteretic_stiffness_n_per_m`` for small reversals, saturating at
     ``hysteretic_stiffness_n_per_m * yield_displacement_m`` (a rounded friction loop) for
-    travel much larger than ``yield_displacement_m``. Simulated only: the grey-box fit
-    does not integrate internal states yet.
+    travel much larger than ``yield_displacement_m``.
     """
 
     name = "hysteretic_spring"

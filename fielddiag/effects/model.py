@@ -12,6 +12,7 @@ C2/M2...) and two sessions with a known added mass identify absolute values.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
@@ -51,6 +52,62 @@ def _force_many_z(r, rd, x2, z, theta, consts):  # pragma: no cover - numba temp
         ds[i, 1] = c
         ds[i, 2] = d
     return f, ds, dp, dz
+
+
+def _force_path_z(r, rd, x2, z0, theta, consts, h, nsub):  # pragma: no cover - numba template
+    """The force along a measured path, the internal states integrated by RK4 (``nsub``
+    steps per sample interval, r, rdot and x2 linear between samples)."""
+    n = r.shape[0]
+    nz = z0.shape[0]
+    f = np.empty(n)
+    ds = np.empty((n, 3))
+    dp = np.empty((n, theta.shape[0]))
+    zs = np.empty((n, nz))
+    z = z0.copy()
+    zt = np.empty(nz)
+    k1 = np.empty(nz)
+    k2 = np.empty(nz)
+    k3 = np.empty(nz)
+    k4 = np.empty(nz)
+    scratch = np.empty(max(theta.shape[0], 1))
+    hs = h / nsub
+    for i in range(n):
+        for j in range(nz):
+            zs[i, j] = z[j]
+        a, b, c, d = model_force_z(r[i], rd[i], x2[i], z, theta, consts, dp[i], k1)
+        f[i] = a
+        ds[i, 0] = b
+        ds[i, 1] = c
+        ds[i, 2] = d
+        if i == n - 1:
+            break
+        for s in range(nsub):
+            w0 = s / nsub
+            wm = (s + 0.5) / nsub
+            w1 = (s + 1.0) / nsub
+            ra = r[i] + w0 * (r[i + 1] - r[i])
+            va = rd[i] + w0 * (rd[i + 1] - rd[i])
+            xa = x2[i] + w0 * (x2[i + 1] - x2[i])
+            rm = r[i] + wm * (r[i + 1] - r[i])
+            vm = rd[i] + wm * (rd[i + 1] - rd[i])
+            xm = x2[i] + wm * (x2[i + 1] - x2[i])
+            rb = r[i] + w1 * (r[i + 1] - r[i])
+            vb = rd[i] + w1 * (rd[i + 1] - rd[i])
+            xb = x2[i] + w1 * (x2[i + 1] - x2[i])
+            if s > 0:
+                model_force_z(ra, va, xa, z, theta, consts, scratch, k1)
+            for j in range(nz):
+                zt[j] = z[j] + 0.5 * hs * k1[j]
+            model_force_z(rm, vm, xm, zt, theta, consts, scratch, k2)
+            for j in range(nz):
+                zt[j] = z[j] + 0.5 * hs * k2[j]
+            model_force_z(rm, vm, xm, zt, theta, consts, scratch, k3)
+            for j in range(nz):
+                zt[j] = z[j] + hs * k3[j]
+            model_force_z(rb, vb, xb, zt, theta, consts, scratch, k4)
+            for j in range(nz):
+                z[j] += hs / 6.0 * (k1[j] + 2.0 * (k2[j] + k3[j]) + k4[j])
+    return f, ds, dp, zs
 
 
 class ForceModel:
@@ -365,6 +422,117 @@ class ForceModel:
                     self.vector(values),
                     self.constant_values())
 
+    def state_substeps(self, theta: np.ndarray, max_rate_mps: float, step_s: float) -> int:
+        """RK4 steps per interval ``step_s`` that keep the internal states stable and accurate.
+
+        Parameters
+        ----------
+        theta : ndarray
+            Parameter vector (absolute values).
+        max_rate_mps : float
+            Largest suspension rate on the path [m/s].
+        step_s : float
+            Sample interval [s].
+
+        Returns
+        -------
+        int
+            ``ceil(step_s * rate / 0.5)`` with ``rate`` the fastest state rate the effects
+            report (:meth:`~fielddiag.effects.base.Effect.speed_bounds`, scaled from
+            :data:`~fielddiag.effects.base.RATE_BOUND_MPS` to ``max_rate_mps``), 1 to 200.
+        """
+        from fielddiag.effects.base import RATE_BOUND_MPS
+
+        rate, p0 = 0.0, 0
+        for t in self.terms:
+            p1 = p0 + len(t.params)
+            if t.n_states:
+                q = float(t.speed_bounds(np.abs(theta[p0:p1]))[2])
+                rate = max(rate, q * max(max_rate_mps, 1e-6) / RATE_BOUND_MPS)
+            p0 = p1
+        if not np.isfinite(rate):
+            return 200
+        return int(min(200, max(1, math.ceil(step_s * rate / 0.5))))
+
+    def force_along_path(
+        self,
+        r: np.ndarray,
+        rdot: np.ndarray,
+        x2: np.ndarray | float,
+        values: Mapping[str, float] | Sequence[float] | np.ndarray,
+        sample_rate_hz: float,
+        *,
+        initial_states: np.ndarray | None = None,
+        state_jacobian: bool = True,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The force along a measured path, with the internal states integrated along it.
+
+        A memoryless model gives :meth:`force`. With internal states (hysteresis, a series
+        top mount) the states start at ``initial_states`` (default: at rest at ``r[0]``,
+        :meth:`static_states`) and follow the path (RK4, ``r``, ``rdot`` and ``x2`` linear
+        between samples). The force then depends on a parameter of a stateful term through
+        the states too: those columns of ``d_params`` are forward differences of the whole
+        path (one more integration per such parameter); the others are the kernels' exact
+        derivatives.
+
+        Parameters
+        ----------
+        r, rdot : ndarray
+            Suspension extension [m] and its rate [m/s] at the samples.
+        x2 : ndarray or float
+            Body position [m].
+        values : mapping or sequence
+            Parameter values (absolute, or per unit mass for a force per unit mass).
+        sample_rate_hz : float
+            Sample rate of the path [Hz].
+        initial_states : ndarray or None
+            ``(n_states,)`` states at the first sample.
+        state_jacobian : bool
+            Compute the stateful terms' parameter columns (False: leave the kernels'
+            explicit derivatives, faster when only the force is wanted).
+
+        Returns
+        -------
+        force : (n,) ndarray
+            Force on the body [N] (or per unit mass).
+        d_state : (n, 3) ndarray
+            dF/dr, dF/drdot, dF/dx2 at frozen states.
+        d_params : (n, n_params) ndarray
+            Derivatives with respect to the parameters (through the states as well).
+        states : (n, n_states) ndarray
+            The internal states along the path.
+        """
+        r = np.ascontiguousarray(r, dtype=float).ravel()
+        rdot = np.ascontiguousarray(rdot, dtype=float).ravel()
+        x2 = np.ascontiguousarray(np.broadcast_to(np.asarray(x2, float), r.shape), dtype=float)
+        theta = self.vector(values)
+        if self.n_states == 0:
+            f, ds, dp = self.force(r, rdot, x2, theta)
+            return f, ds, dp, np.zeros((r.size, 0))
+        h = 1.0 / float(sample_rate_hz)
+        nsub = self.state_substeps(theta, float(np.max(np.abs(rdot))) if r.size else 0.0, h)
+        path = self.compile(__name__, "_force_path_z", error_model="numpy")._force_path_z
+
+        def run(th: np.ndarray) -> tuple[np.ndarray, ...]:
+            z0 = (self.static_states(float(r[0]) if r.size else 0.0, th)
+                  if initial_states is None else np.asarray(initial_states, float).ravel())
+            return path(r, rdot, x2, np.ascontiguousarray(z0), th, self.constant_values(), h,
+                        nsub)
+
+        f, ds, dp, zs = run(theta)
+        if state_jacobian:
+            p0 = 0
+            for t in self.terms:
+                p1 = p0 + len(t.params)
+                if t.n_states:
+                    for j in range(p0, p1):
+                        step = 1e-6 * max(abs(theta[j]), 1e-12) if theta[j] else 1e-9
+                        th = theta.copy()
+                        th[j] += step
+                        dp[:, j] = (run(th)[0] - f) / step
+                p0 = p1
+        return f, ds, dp, zs
+
     def static_states(self, r: float, values: Sequence[float] | np.ndarray) -> np.ndarray:
         """Internal states of all effects at rest at extension ``r`` [m] (loaded slowly).
 
@@ -523,7 +691,7 @@ def model_from_sim(params: Any, effects: Sequence[Effect] = (), *, coupling: boo
     params : fielddiag.sim.QuarterCarParams
         The linear car.
     effects : sequence of Effect
-        Simulated effects (with values); memoryless ones only (the fit has no states).
+        Simulated effects (with values).
     coupling : bool or None
         Include the coupling spring; None: when the car's coupling stiffness is non-zero.
 
@@ -535,7 +703,7 @@ def model_from_sim(params: Any, effects: Sequence[Effect] = (), *, coupling: boo
     Raises
     ------
     FieldDiagError
-        An effect with internal states.
+        A linear term given as an effect.
     """
     if coupling is None:
         coupling = params.coupling_stiffness_n_per_m != 0.0
@@ -546,9 +714,9 @@ def model_from_sim(params: Any, effects: Sequence[Effect] = (), *, coupling: boo
         "coupling_spring.coupling_stiffness_n_per_m": params.coupling_stiffness_n_per_m,
     }
     for e in effects:
-        if e.linear or e.n_states:
-            raise FieldDiagError(f"effect {e.name!r} has no model term the grey-box fit can "
-                                 "use (internal states are not fitted yet)")
+        if e.linear:
+            raise FieldDiagError(f"{e.name!r} is a linear term, not an effect; give it "
+                                 "through the car's parameters")
         terms.append(e.as_term())
         for name, v in (e.values or {}).items():
             values[f"{e.name}.{name}"] = v

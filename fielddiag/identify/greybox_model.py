@@ -20,7 +20,7 @@ from scipy import signal
 from fielddiag.effects import ForceModel
 from fielddiag.errors import FieldDiagError, InsufficientDataError
 from fielddiag.identify.greybox_data import GRAVITY_MPS2, GreyBoxData
-from fielddiag.identify.greybox_sensitivities import _EMPTY, _kernels
+from fielddiag.identify.greybox_sensitivities import _EMPTY, _kernels, static_equilibrium
 
 __all__ = ["GreyBoxProblem"]
 
@@ -94,11 +94,6 @@ class GreyBoxProblem:
     ) -> None:
         if not data:
             raise FieldDiagError("give at least one session to fit")
-        if model.n_states:
-            stateful = [t.name for t in model.terms if t.n_states]
-            raise FieldDiagError(
-                f"the grey-box fit cannot fit {stateful} yet: effects with an internal state "
-                "(hysteresis) are simulated but not fitted; leave them out of the model")
         self.model = model
         self.data = list(data)
         masses = sorted({round(float(d.added_mass_kg), 9) for d in self.data})
@@ -264,6 +259,8 @@ class GreyBoxProblem:
             Per session the simulated body acceleration [m/s^2] (band-filtered like the
             measurement, ends trimmed) and its Jacobian ``(n, n_fit)`` (None without ``sens``).
         """
+        if self.model.n_states:
+            return self._simulate_stateful(z, sens)
         theta_u, mass, nuis = self.unpack(z)
         kern = _kernels(self.model)._simulate
         consts = self.model.constant_values()
@@ -303,6 +300,67 @@ class GreyBoxProblem:
                 if self.fit_initial_state:
                     jz[:, self.nuis_index + 2 * s] = jac[:, p + 1]
                     jz[:, self.nuis_index + 2 * s + 1] = jac[:, p + 2]
+            if pr.sos is not None:
+                a = signal.sosfiltfilt(pr.sos, a)
+                if jz is not None:
+                    jz = signal.sosfiltfilt(pr.sos, jz, axis=0)
+            out.append((a[pr.keep], None if jz is None else jz[pr.keep]))
+        return out
+
+    def _session_setup(self, d: GreyBoxData, theta_u: np.ndarray, mass: float | None
+                       ) -> tuple[np.ndarray, float, float]:
+        """(absolute or per-unit-mass parameters, total mass, load) of one session."""
+        if self.absolute:
+            load = 0.0 if d.ride_height_restored else d.added_mass_kg * GRAVITY_MPS2
+            return (np.where(self.scaled, theta_u * mass, theta_u), mass + d.added_mass_kg,
+                    load)
+        m_tot, load = self._mass_for_unit(d)
+        return theta_u, m_tot, load
+
+    def _simulate_session_z(self, s: int, z: np.ndarray) -> np.ndarray:
+        """Body acceleration of session ``s`` (unfiltered, untrimmed) for a model with
+        internal states."""
+        theta_u, mass, nuis = self.unpack(z)
+        pr = self._prep[s]
+        d = pr.data
+        theta, m_tot, load = self._session_setup(d, theta_u, mass)
+        x_eq, z_eq = static_equilibrium(self.model, theta, float(d.wheel_disp_m[0]), load)
+        h = 1.0 / d.sample_rate_hz
+        rate = float(np.max(np.abs(np.diff(d.wheel_disp_m)))) / h * 4.0 if d.n_samples > 1 \
+            else 0.0
+        nsub = max(self.substeps, self.model.state_substeps(theta, rate, h))
+        every = 0
+        if self.horizon_s is not None and d.body_disp_m is not None:
+            every = max(1, int(round(self.horizon_s * d.sample_rate_hz)))
+        r_static = x_eq - float(d.wheel_disp_m[0]) if d.band_hz is not None else 0.0
+        self.evaluations += 1
+        return _kernels(self.model)._simulate_z(
+            d.wheel_disp_m, d.wheel_vel_mps, h, nsub, theta, self.model.constant_values(),
+            m_tot, load, x_eq, np.ascontiguousarray(z_eq, dtype=float), nuis[s, 0],
+            nuis[s, 1], every, d.body_disp_m if every else _EMPTY,
+            d.body_vel_mps if every else _EMPTY, r_static)
+
+    def _simulate_stateful(self, z: np.ndarray, sens: bool
+                           ) -> list[tuple[np.ndarray, np.ndarray | None]]:
+        """:meth:`simulate` for models with internal states: the Jacobian by forward
+        differences of the same discrete simulation (one more run per fitted value; a
+        session's initial-state columns re-run that session only)."""
+        out = []
+        for s, pr in enumerate(self._prep):
+            a = self._simulate_session_z(s, z)
+            jz = None
+            if sens:
+                jz = np.zeros((a.size, self.n_fit))
+                cols = list(range(self.nuis_index))
+                if self.fit_initial_state:
+                    cols += [self.nuis_index + 2 * s, self.nuis_index + 2 * s + 1]
+                for j in cols:
+                    step = 1e-6 * max(abs(z[j]), 1e-3 if j >= self.nuis_index else 1e-12)
+                    if z[j] == 0 and j < self.nuis_index:
+                        step = 1e-9
+                    zz = z.copy()
+                    zz[j] += step
+                    jz[:, j] = (self._simulate_session_z(s, zz) - a) / step
             if pr.sos is not None:
                 a = signal.sosfiltfilt(pr.sos, a)
                 if jz is not None:
@@ -391,7 +449,8 @@ class GreyBoxProblem:
                     continue
                 r = d.body_disp_m - d.wheel_disp_m
                 rd = d.body_vel_mps - d.wheel_vel_mps
-                _, _, dp = model.force(r, rd, d.body_disp_m, typical_u)
+                _, _, dp, _ = model.force_along_path(r, rd, d.body_disp_m, typical_u,
+                                                   d.sample_rate_hz)
                 if pr.sos is not None:
                     dp = signal.sosfiltfilt(pr.sos, dp, axis=0)
                 rows.append(dp[pr.keep])

@@ -24,7 +24,7 @@ import numpy as np
 from numba import njit
 
 from fielddiag.effects import ForceModel
-from fielddiag.effects.compose import model_force
+from fielddiag.effects.compose import model_force, model_force_z
 from fielddiag.identify.greybox_data import GRAVITY_MPS2
 
 __all__ = ["simulate_body"]
@@ -189,9 +189,117 @@ def _simulate(x1, v1, h, nsub, theta, consts, mass, load, dx0, dv0, sens,
     return a_out, jac
 
 
+def _accel_z(x, v, z, xin, vin, theta, consts, mass, load, dth, dz):  # pragma: no cover
+    """Body acceleration and the states' rates at one stage (models with internal states)."""
+    f, fr, fv, fx = model_force_z(x - xin, v - vin, x, z, theta, consts, dth, dz)
+    return (f - load) / mass
+
+
+def _simulate_z(x1, v1, h, nsub, theta, consts, mass, load, x_eq, z_eq, dx0, dv0,
+                reset_every, x2r, v2r, r_static):  # pragma: no cover - numba template
+    """RK4 of the body and the effects' internal states, driven by (x1, v1), from the
+    static equilibrium ``x_eq``, ``z_eq`` (found by the caller) plus ``dx0``, ``dv0``.
+
+    With ``reset_every`` > 0 the body (not the states) is reset to the measured motion plus
+    ``r_static`` every ``reset_every`` samples. Returns a2 (n,)."""
+    n = x1.shape[0]
+    nz = z_eq.shape[0]
+    a_out = np.empty(n)
+    dth = np.zeros(max(theta.shape[0], 1))
+    z = z_eq.copy()
+    zt = np.empty(nz)
+    k1 = np.empty(nz)
+    k2 = np.empty(nz)
+    k3 = np.empty(nz)
+    k4 = np.empty(nz)
+    x = x_eq + dx0
+    v = dv0
+    bas = _hermite_basis(nsub)
+    hs = h / nsub
+    xin = np.empty(3)
+    vin = np.empty(3)
+    for i in range(n):
+        if reset_every > 0 and i > 0 and i % reset_every == 0:
+            x = x2r[i] + r_static
+            v = v2r[i]
+        a1 = _accel_z(x, v, z, x1[i], v1[i], theta, consts, mass, load, dth, k1)
+        a_out[i] = a1
+        if i == n - 1:
+            break
+        x0k, x1k = x1[i], x1[i + 1]
+        hv0, hv1 = h * v1[i], h * v1[i + 1]
+        for s in range(nsub):
+            for m in range(3):
+                b = bas[2 * s + m]
+                xin[m] = b[0] * x0k + b[1] * hv0 + b[2] * x1k + b[3] * hv1
+                vin[m] = (b[4] * x0k + b[5] * hv0 + b[6] * x1k + b[7] * hv1) / h
+            if s > 0:
+                a1 = _accel_z(x, v, z, xin[0], vin[0], theta, consts, mass, load, dth, k1)
+            for j in range(nz):
+                zt[j] = z[j] + 0.5 * hs * k1[j]
+            xs, vs = x + 0.5 * hs * v, v + 0.5 * hs * a1
+            a2 = _accel_z(xs, vs, zt, xin[1], vin[1], theta, consts, mass, load, dth, k2)
+            kx2, kv2 = vs, a2
+            for j in range(nz):
+                zt[j] = z[j] + 0.5 * hs * k2[j]
+            xs, vs = x + 0.5 * hs * kx2, v + 0.5 * hs * kv2
+            a3 = _accel_z(xs, vs, zt, xin[1], vin[1], theta, consts, mass, load, dth, k3)
+            kx3, kv3 = vs, a3
+            for j in range(nz):
+                zt[j] = z[j] + hs * k3[j]
+            xs, vs = x + hs * kx3, v + hs * kv3
+            a4 = _accel_z(xs, vs, zt, xin[2], vin[2], theta, consts, mass, load, dth, k4)
+            x += hs / 6.0 * (v + 2.0 * kx2 + 2.0 * kx3 + vs)
+            v += hs / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
+            for j in range(nz):
+                z[j] += hs / 6.0 * (k1[j] + 2.0 * (k2[j] + k3[j]) + k4[j])
+    return a_out
+
+
 def _kernels(model: ForceModel) -> Any:
     """The simulation templates compiled for ``model`` (cached per term combination)."""
+    if model.n_states:
+        return model.compile(__name__, "_accel_z", "_simulate_z", error_model="numpy")
     return model.compile(__name__, "_stage", "_simulate")
+
+
+def static_equilibrium(model: ForceModel, theta: np.ndarray, wheel_disp_m: float,
+                       load_n: float) -> tuple[float, np.ndarray]:
+    """Body position and internal states at rest on a wheel at ``wheel_disp_m``.
+
+    Solves ``F_static(x - x1, x) = load`` (the effects' static contributions, internal
+    states loaded slowly from r = 0) by Brent's method on a bracket grown from r = 0.
+
+    Parameters
+    ----------
+    model : ForceModel
+        Force terms.
+    theta : ndarray
+        Parameters (absolute, or per unit mass with a load per unit mass).
+    wheel_disp_m : float
+        Wheel position [m].
+    load_n : float
+        Static load on the suspension [N] (the added weight), or per unit mass.
+
+    Returns
+    -------
+    (float, ndarray)
+        Body position [m] and the states ``(n_states,)``.
+    """
+    from scipy.optimize import brentq
+
+    def net(r: float) -> float:
+        return model.static_force(r, r + wheel_disp_m, theta) - load_n
+
+    r = 0.0
+    h0 = net(0.0)
+    if h0 != 0.0:
+        a, b = 0.0, -1e-5 if h0 < 0 else 1e-5  # F falls with r where stable
+        while net(b) * h0 > 0 and abs(b) < 2.0:
+            a, b = b, 2 * b
+        if net(b) * h0 <= 0:
+            r = brentq(net, min(a, b), max(a, b), xtol=1e-12)
+    return r + wheel_disp_m, model.static_states(r, theta)
 
 
 def simulate_body(
