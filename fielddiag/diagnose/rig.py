@@ -47,9 +47,18 @@ from fielddiag.errors import InsufficientDataError
 from fielddiag.identify.terms import ForceModel, make_term, split_shape
 
 #: Effect terms tried by default, in the diagnosis library's names.
-RIG_EFFECTS = ("coulomb_friction", "cubic_stiffness", "bump_stop", "asymmetric_damping")
+RIG_EFFECTS = ("coulomb_friction", "cubic_stiffness", "bump_stop", "asymmetric_damping",
+               "hysteretic_spring")
 #: The moving mass is kept when its force is at least this share of the force's spread.
 MIN_INERTIA_SHARE = 0.01
+#: Warm-up [s]: the internal states of a hysteresis start at rest, unknown to the data, so
+#: a record's first this long of motion (after any still start) and the same span before
+#: any part of it only carry the states; their force is not scored (for every model alike).
+WARMUP_S = 0.5
+#: Start values of a hysteresis' yield travel, as shares of the displacement's std.
+YIELD_STARTS = (0.003, 0.03, 0.3)
+#: The rig counts as moving once its speed exceeds this share of its 99th-percentile speed.
+MOTION_START_SHARE = 0.05
 
 
 @dataclass(frozen=True)
@@ -84,6 +93,31 @@ class RigData:
     displacement_unit: str = "m"
     force_raw: np.ndarray | None = None
     band: RigBand | None = None
+    lead_displacement: np.ndarray | None = None
+    lead_velocity: np.ndarray | None = None
+
+    @property
+    def n_lead(self) -> int:
+        """Samples of motion before the first one (the internal states' warm-up)."""
+        return 0 if self.lead_displacement is None else int(self.lead_displacement.size)
+
+    @property
+    def warmup_samples(self) -> int:
+        """Samples the internal states run through before a part's first sample."""
+        return int(np.ceil(WARMUP_S * self.sample_rate_hz))
+
+    def path(self) -> tuple[np.ndarray, np.ndarray]:
+        """Displacement and velocity with the lead-in in front (the states' whole path).
+
+        Returns
+        -------
+        (numpy.ndarray, numpy.ndarray)
+            ``n_lead + n`` samples each.
+        """
+        if not self.n_lead:
+            return self.displacement, self.velocity
+        return (np.concatenate((self.lead_displacement, self.displacement)),
+                np.concatenate((self.lead_velocity, self.velocity)))
 
     @property
     def cutoff_hz(self) -> float | None:
@@ -119,6 +153,11 @@ class RigData:
         """
         sl = slice(start, stop)
         raw = None if self.force_raw is None else self.force_raw[sl]
+        # the motion just before the part (at most the warm-up): the internal states of a
+        # hysteresis run through it, its force is not scored
+        px, pv = self.path()
+        s0 = self.n_lead + start
+        lead = slice(max(0, s0 - self.warmup_samples), s0)
         force = self.force[sl] if raw is None else self.lowpass(raw)
         return RigData(
             self.sample_rate_hz,
@@ -131,6 +170,8 @@ class RigData:
             self.displacement_unit,
             raw,
             self.band,
+            px[lead].copy() if s0 > lead.start else None,
+            pv[lead].copy() if s0 > lead.start else None,
         )
 
     @property
@@ -148,6 +189,24 @@ def _edge_margin(sample_rate_hz: float, cutoff_hz: float | None, n: int) -> int:
     """Samples dropped at each end of a record: the filter's settling near the ends."""
     settle = 8 if cutoff_hz is None else int(np.ceil(2.0 * sample_rate_hz / cutoff_hz))
     return int(min(max(settle, 8), n // 20))
+
+
+def _after_warmup(data: RigData) -> RigData:
+    """The record from the end of its warm-up on: the still samples at its start and the
+    first :data:`WARMUP_S` of motion become the lead-in (at most a third of the record).
+
+    Parameters
+    ----------
+    data : RigData
+
+    Returns
+    -------
+    RigData
+    """
+    speed = np.abs(data.velocity)
+    moving = np.flatnonzero(speed > MOTION_START_SHARE * np.quantile(speed, 0.99))
+    start = (int(moving[0]) if moving.size else 0) + data.warmup_samples
+    return data.part(min(start, data.n // 3), data.n)
 
 
 def rig_data_from_displacement(
@@ -199,7 +258,7 @@ def rig_data_from_displacement(
     data = RigData(fs, np.asarray(time_s, float), f, x, v, a, force_unit,
                    displacement_unit, f, band)
     k = _edge_margin(fs, band.cutoff_hz, data.n)
-    return data.part(k, data.n - k)
+    return _after_warmup(data.part(k, data.n - k))
 
 
 def rig_data_from_acceleration(
@@ -269,7 +328,7 @@ def rig_data_from_acceleration(
         band,
     )
     k = _edge_margin(fs, None if band is None else band.cutoff_hz, data.n)
-    return data.part(k, data.n - k)
+    return _after_warmup(data.part(k, data.n - k))
 
 
 # ----------------------------------------------------------------------------- fitting
@@ -279,12 +338,50 @@ def _model_for(effects: Sequence[str]) -> ForceModel:
     return model
 
 
-def _residual_and_jac(model: ForceModel, z: np.ndarray, data: RigData):
+def model_force(model: ForceModel, theta: np.ndarray, data: RigData, *,
+                state_jacobian: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """The model's force ``F(r, rdot)`` over a record and its derivatives in ``theta``.
+
+    A memoryless model is evaluated sample by sample. A model with internal states (a
+    hysteresis) integrates them along the measured motion
+    (:meth:`~fielddiag.effects.model.ForceModel.force_along_path`), starting at rest at the
+    first sample of the record's lead-in (:attr:`RigData.n_lead`), and keeps the samples
+    after it.
+
+    Parameters
+    ----------
+    model : ForceModel
+    theta : numpy.ndarray
+        Parameter values in model order.
+    data : RigData
+        The record (or part).
+    state_jacobian : bool
+        Derivatives through the states (forward differences, one more integration per
+        parameter of a stateful term); False leaves the kernels' derivatives at frozen
+        states, which are exact for a parameter the states do not depend on.
+
+    Returns
+    -------
+    force : numpy.ndarray, shape (n,)
+    d_params : numpy.ndarray, shape (n, n_params)
+    """
+    if model.n_states == 0:
+        zeros = np.zeros_like(data.displacement)
+        f, _, dth = model.force(data.displacement, data.velocity, zeros, theta)
+        return f, dth
+    x, v = data.path()
+    f, _, dth, _ = model.force_along_path(x, v, 0.0, theta, data.sample_rate_hz,
+                                          state_jacobian=state_jacobian)
+    k = data.n_lead
+    return f[k:], dth[k:]
+
+
+def _residual_and_jac(model: ForceModel, z: np.ndarray, data: RigData, *,
+                      state_jacobian: bool = True):
     """Residual ``force - (F0 + m a - F)`` and its Jacobian in ``z``, both through the
     band's filter (the measured force went through it; the model's force goes too)."""
     f0, m, theta = z[0], z[1], z[2:]
-    zeros = np.zeros_like(data.displacement)
-    fm, _, dth = model.force(data.displacement, data.velocity, zeros, theta)
+    fm, dth = model_force(model, theta, data, state_jacobian=state_jacobian)
     pred_raw = m * data.acceleration - fm
     jac = np.empty((data.n, z.size))
     jac[:, 0] = -1.0
@@ -313,9 +410,20 @@ def _start_values(model: ForceModel, data: RigData, linear: dict[str, float]) ->
             base.append(5.0 * linear.get("linear_spring.suspension_stiffness_n_per_m", 2e4))
         elif spec.name == "gap_m":
             base.append(float(np.quantile(-data.displacement, 0.9)))
+        elif spec.name == "yield_displacement_m":
+            base.append(YIELD_STARTS[1] * float(np.std(data.displacement)))
         else:
             base.append(spec.typical)
     starts = [np.array([linear.get("f0", 0.0), linear.get("m", 0.0), *base])]
+    for key in model.param_keys:
+        if key.endswith(".yield_displacement_m"):
+            # a hysteresis' yield travel: anywhere from far below a sample's travel (a
+            # sharp friction-like loop) to a good share of the stroke
+            j = 2 + model.index(key)
+            for q in (YIELD_STARTS[0], YIELD_STARTS[2]):
+                st = starts[0].copy()
+                st[j] = q * float(np.std(data.displacement))
+                starts.append(st)
     if "bump_stop.gap_m" in model.param_keys:
         j = 2 + model.index("bump_stop.gap_m")
         for q in (0.7, 0.97):
@@ -366,20 +474,20 @@ def fit_rig_model(
     model = _model_for(effects)
     lower = np.concatenate(([-np.inf, 0.0], model.lower))
     upper = np.concatenate(([np.inf, np.inf], model.upper))
-    # variable projection: the force is proportional to each force-scaled parameter of a
-    # memoryless term (ParamSpec.scales_with_force), so linear in F0, m and those; only
-    # the rest (a bump stop's gap, friction's smoothing velocity) is searched, the linear
-    # ones solved by bounded least squares at every step of that search
-    lin_terms = {t.name for t in model.terms if t.n_states == 0}
+    # variable projection: the force is proportional to each force-scaled parameter
+    # (ParamSpec.scales_with_force) whose term's states, if any, do not depend on it (a
+    # hysteresis' force level, given its state), so linear in F0, m and those; only the
+    # rest (a bump stop's gap, friction's smoothing velocity, a hysteresis' yield travel)
+    # is searched, the linear ones solved by bounded least squares at every step of it
+    starts = _start_values(model, data, linear or {})
+    state_free = _state_free_params(model, starts[0][2:], data)
     linear_mask = np.concatenate(([True, True], [
-        spec.scales_with_force and term in lin_terms
-        for term, spec in zip(model.param_terms, model.specs, strict=True)
+        spec.scales_with_force and ok for spec, ok in zip(model.specs, state_free, strict=True)
     ]))
     free = np.ones(lower.size, bool)
     free[1] = fit_mass
     lin = linear_mask & free
     nonlin = ~linear_mask & free
-    starts = _start_values(model, data, linear or {})
 
     lin_idx = np.flatnonzero(lin)
     noise_cov = _noise_covariance(model, data, lin_idx)
@@ -396,11 +504,10 @@ def fit_rig_model(
         z = z.copy()
         z[lin] = 0.0
         if "a" not in base:
-            _, jac = _residual_and_jac(model, z, data)
+            _, jac = _residual_and_jac(model, z, data, state_jacobian=False)
             base["a"] = -jac[:, lin_idx]
         elif moving.any():
-            zeros = np.zeros_like(data.displacement)
-            _, _, dth = model.force(data.displacement, data.velocity, zeros, z[2:])
+            _, dth = model_force(model, z[2:], data, state_jacobian=False)
             cols = dth[:, lin_idx[moving] - 2]
             base["a"][:, moving] = -data.lowpass(cols)
         a = base["a"]
@@ -456,6 +563,44 @@ def fit_rig_model(
     except np.linalg.LinAlgError:
         cov[np.ix_(free, free)] = np.nan
     return model, z, cov, s2
+
+
+def _state_free_params(model: ForceModel, theta: np.ndarray, data: RigData) -> list[bool]:
+    """For each parameter: True unless it belongs to a term with internal states whose
+    states change with it (checked along the record: the states with the parameter at
+    zero and at ``theta`` or its typical value). A force-scaled parameter the states do
+    not depend on enters the force linearly (Dahl's stiffness, Bouc-Wen's force level).
+
+    Parameters
+    ----------
+    model : ForceModel
+    theta : numpy.ndarray
+        Parameter values (start values) in model order.
+    data : RigData
+
+    Returns
+    -------
+    list of bool
+    """
+    out = [True] * model.n_params
+    if model.n_states == 0:
+        return out
+    x, v = data.path()
+    fs = data.sample_rate_hz
+    th = np.array(theta, float)
+    for j, (term, spec) in enumerate(zip(model.param_terms, model.specs, strict=True)):
+        if not any(t.name == term and t.n_states for t in model.terms):
+            continue
+        if not spec.scales_with_force:
+            out[j] = False
+            continue
+        a, b = th.copy(), th.copy()
+        a[j] = 0.0
+        b[j] = th[j] if th[j] else spec.typical
+        za = model.force_along_path(x, v, 0.0, a, fs, state_jacobian=False)[3]
+        zb = model.force_along_path(x, v, 0.0, b, fs, state_jacobian=False)[3]
+        out[j] = bool(np.array_equal(za, zb))
+    return out
 
 
 #: Columns of the linear fit that white displacement noise enters, by parameter key.
@@ -529,8 +674,8 @@ def _candidate(
 ) -> CandidateFit:
     model, z, cov, _ = fit_rig_model(effects, fit, linear, fit_mass=fit_mass)
     std = np.sqrt(np.clip(np.diag(cov), 0, None))
-    res_fit, _ = _residual_and_jac(model, z, fit)
-    res_val, _ = _residual_and_jac(model, z, val)
+    res_fit, _ = _residual_and_jac(model, z, fit, state_jacobian=False)
+    res_val, _ = _residual_and_jac(model, z, val, state_jacobian=False)
     names = _named(model, z)
     stds = dict(zip(names, std.tolist(), strict=True))
     return CandidateFit(
@@ -691,7 +836,7 @@ def _unexplained_structure(
     held-out part; if it predicts the held-out residual significantly, structure is left.
     """
     model, z = chosen.extra["model"], chosen.extra["z"]
-    res_fit, _ = _residual_and_jac(model, z, fit)
+    res_fit, _ = _residual_and_jac(model, z, fit, state_jacobian=False)
     dmap = departure_map(fit.displacement, fit.velocity, res_fit, bins=12)
     i = np.clip(np.searchsorted(dmap.r_edges_m, val.displacement) - 1, 0, dmap.mean.shape[0] - 1)
     j = np.clip(np.searchsorted(dmap.rdot_edges_mps, val.velocity) - 1, 0, dmap.mean.shape[1] - 1)
