@@ -48,7 +48,7 @@ from fielddiag.identify.terms import ForceModel, make_term, split_shape
 
 #: Effect terms tried by default, in the diagnosis library's names.
 RIG_EFFECTS = ("coulomb_friction", "cubic_stiffness", "bump_stop", "asymmetric_damping",
-               "hysteretic_spring")
+               "hysteretic_spring", "dahl_friction")
 #: The moving mass is kept when its force is at least this share of the force's spread.
 MIN_INERTIA_SHARE = 0.01
 #: Warm-up [s]: the internal states of a hysteresis start at rest, unknown to the data, so
@@ -511,7 +511,14 @@ def fit_rig_model(
             cols = dth[:, lin_idx[moving] - 2]
             base["a"][:, moving] = -data.lowpass(cols)
         a = base["a"]
-        scale = np.sqrt(np.sum(a * a, axis=0))
+        if not np.all(np.isfinite(a)):  # pragma: no cover - guarded search
+            # states integrated out of their stable range (a yield travel far below a
+            # sample's travel): a poor, finite cost steers the search back
+            return z, 10.0 * data.force
+        with np.errstate(over="ignore", invalid="ignore"):
+            scale = np.sqrt(np.sum(a * a, axis=0))
+        if not np.all(np.isfinite(scale)):
+            return z, 10.0 * data.force
         scale[scale == 0] = 1.0
         a_s = a / scale
         bounds = (lower[lin] * scale, upper[lin] * scale)
