@@ -39,24 +39,27 @@ from fielddiag.diagnose.rig_band import RigBand, choose_rig_band, lowpass, zero_
 from fielddiag.diagnose.selection import (
     CandidateFit,
     Selection,
+    compare,
     confidence,
     nrmse,
     select_model,
 )
-from fielddiag.errors import InsufficientDataError
+from fielddiag.effects import get_effect
+from fielddiag.errors import FieldDiagError, InsufficientDataError
 from fielddiag.identify.terms import ForceModel, make_term, split_shape
 
 #: Effect terms tried by default, in the diagnosis library's names.
 RIG_EFFECTS = ("coulomb_friction", "cubic_stiffness", "bump_stop", "asymmetric_damping",
-               "hysteretic_spring", "dahl_friction")
+               "dahl_friction")
 #: The moving mass is kept when its force is at least this share of the force's spread.
 MIN_INERTIA_SHARE = 0.01
 #: Warm-up [s]: the internal states of a hysteresis start at rest, unknown to the data, so
 #: a record's first this long of motion (after any still start) and the same span before
 #: any part of it only carry the states; their force is not scored (for every model alike).
 WARMUP_S = 0.5
-#: Start values of a hysteresis' yield travel, as shares of the displacement's std.
-YIELD_STARTS = (0.003, 0.03, 0.3)
+#: Start values of a hysteresis' yield travel, as shares of the displacement's std
+#: (screened: the search starts from the best).
+YIELD_STARTS = tuple(np.geomspace(0.002, 0.3, 7))
 #: The rig counts as moving once its speed exceeds this share of its 99th-percentile speed.
 MOTION_START_SHARE = 0.05
 
@@ -411,7 +414,7 @@ def _start_values(model: ForceModel, data: RigData, linear: dict[str, float]) ->
         elif spec.name == "gap_m":
             base.append(float(np.quantile(-data.displacement, 0.9)))
         elif spec.name == "yield_displacement_m":
-            base.append(YIELD_STARTS[1] * float(np.std(data.displacement)))
+            base.append(float(np.median(YIELD_STARTS)) * float(np.std(data.displacement)))
         else:
             base.append(spec.typical)
     starts = [np.array([linear.get("f0", 0.0), linear.get("m", 0.0), *base])]
@@ -420,10 +423,13 @@ def _start_values(model: ForceModel, data: RigData, linear: dict[str, float]) ->
             # a hysteresis' yield travel: anywhere from far below a sample's travel (a
             # sharp friction-like loop) to a good share of the stroke
             j = 2 + model.index(key)
-            for q in (YIELD_STARTS[0], YIELD_STARTS[2]):
-                st = starts[0].copy()
-                st[j] = q * float(np.std(data.displacement))
-                starts.append(st)
+            grid = []
+            for st in starts:
+                for q in YIELD_STARTS:
+                    st = st.copy()
+                    st[j] = q * float(np.std(data.displacement))
+                    grid.append(st)
+            starts = grid
     if "bump_stop.gap_m" in model.param_keys:
         j = 2 + model.index("bump_stop.gap_m")
         for q in (0.7, 0.97):
@@ -539,10 +545,16 @@ def fit_rig_model(
         z[lin] = sol.x / scale
         return z, data.force - a_s @ sol.x
 
+    starts = [_inside(z0, lower, upper) for z0 in starts]
+    for z0 in starts:
+        z0[~free] = 0.0
+    if model.n_states and len(starts) > 1:
+        # a hysteresis' yield travel: screened on a grid (one integration of the states
+        # each), the search started from the best point only
+        costs = [float(np.sum(solve_linear(z0)[1] ** 2)) for z0 in starts]
+        starts = [starts[int(np.argmin(costs))]]
     best_z, best_cost = None, np.inf
     for z0 in starts:
-        z0 = _inside(z0, lower, upper)
-        z0[~free] = 0.0
         if nonlin.any():
             def reduced(q: np.ndarray, z0=z0) -> np.ndarray:
                 zz = z0.copy()
@@ -726,7 +738,7 @@ class RigDiagnosis:
         findings = []
         if chosen is not base:
             explained = 1.0 - chosen.mse_validation / base.mse_validation
-            for eff in chosen.effects:
+            for eff in self.effects_by_weight():
                 params, shape = split_shape({
                     k.split(".", 1)[1]: v
                     for k, v in chosen.values.items()
@@ -744,7 +756,7 @@ class RigDiagnosis:
                             if k.startswith(eff + ".")
                         },
                         "where": {"region": self._region(chosen)},
-                        "explanation": _rig_explanation(eff, params, self.data),
+                        "explanation": _rig_explanation(eff, params, self.data, shape),
                     }
                 )
         if self.unexplained is not None:
@@ -787,6 +799,18 @@ class RigDiagnosis:
             "warnings": [],
         }
 
+    def effects_by_weight(self) -> list[str]:
+        """The chosen model's effects, the one that alone predicts the held-out data best
+        first (for a pair, the effect whose removal would cost the most).
+
+        Returns
+        -------
+        list of str
+        """
+        single = {c.effects[0]: c.mse_validation for c, _ in self.selection.ranking
+                  if len(c.effects) == 1}
+        return sorted(self.selection.chosen.effects, key=lambda e: single.get(e, np.inf))
+
     def _band(self) -> dict:
         band = self.data.band
         out = band.to_dict() if band is not None else {"filter": "none", "cutoff_hz": None,
@@ -809,7 +833,8 @@ class RigDiagnosis:
         return None if reg is None else {"displacement": reg["r_m"], "velocity": reg["rdot_mps"]}
 
 
-def _rig_explanation(effect: str, p: dict[str, float], data: RigData) -> str:
+def _rig_explanation(effect: str, p: dict[str, float], data: RigData,
+                     shape: dict[str, float] | None = None) -> str:
     fu, du = data.force_unit, data.displacement_unit
     if effect == "coulomb_friction":
         return (
@@ -831,7 +856,10 @@ def _rig_explanation(effect: str, p: dict[str, float], data: RigData) -> str:
             f"damping differs by direction: {p['compression_damping_ns_per_m']:.4g} in "
             f"compression, {p['rebound_damping_ns_per_m']:.4g} in rebound ({fu} s/{du})"
         )
-    return effect
+    try:
+        return get_effect(effect)().explain({**p, **(shape or {})})
+    except (KeyError, ValueError, FieldDiagError):  # pragma: no cover - unknown name
+        return effect
 
 
 def _unexplained_structure(
@@ -920,15 +948,49 @@ def diagnose_rig(
     fit_mass = inertia_shown(baseline, fit)
     if not fit_mass:
         baseline = _candidate((), fit, val, {}, fit_mass=False)
-    linear = {k: v for k, v in baseline.values.items()}
-    linear["f0"], linear["m"] = baseline.values["preload_n"], baseline.values["moving_mass_kg"]
-    combos: list[tuple[str, ...]] = [(e,) for e in effects]
-    if max_pair:
-        combos += [c for c in itertools.combinations(effects, 2)]
-    candidates = [_candidate(c, fit, val, linear, fit_mass) for c in combos]
-    sel = _select_whitened(baseline, candidates, fit)
+    sel = _select_among(effects, baseline, fit, val, fit_mass, max_pair)
+    if not fit_mass and sel.chosen is not baseline and _inertia_in(sel.chosen, fit, val):
+        # the linear model's mass was not trusted (it soaks up unmodelled force such as a
+        # hysteresis), but the chosen model, which explains that force, shows inertia:
+        # everything again with the mass in the model
+        fit_mass = True
+        baseline = _candidate((), fit, val, {})
+        sel = _select_among(effects, baseline, fit, val, fit_mass, max_pair)
     unexplained = _unexplained_structure(baseline, sel.chosen, fit, val)
     return RigDiagnosis(sel, data, split, unexplained, fit_mass)
+
+
+def _select_among(effects: Sequence[str], baseline: CandidateFit, fit: RigData, val: RigData,
+                  fit_mass: bool, max_pair: bool) -> Selection:
+    """Fit every single effect and pair, and choose (:func:`_select_whitened`).
+
+    A pair with an effect that has internal states (a hysteresis, the costly fits) is tried
+    only where that effect alone predicts the held-out data significantly better than the
+    linear model."""
+    linear = {k: v for k, v in baseline.values.items()}
+    linear["f0"], linear["m"] = baseline.values["preload_n"], baseline.values["moving_mass_kg"]
+    singles = {e: _candidate((e,), fit, val, linear, fit_mass) for e in effects}
+    candidates = list(singles.values())
+    if max_pair:
+        for pair in itertools.combinations(effects, 2):
+            stateful = [e for e in pair if get_effect(e).n_states]
+            if any(not compare(baseline, singles[e]).beats(
+                    singles[e].n_params - baseline.n_params) for e in stateful):
+                continue
+            candidates.append(_candidate(pair, fit, val, linear, fit_mass))
+    return _select_whitened(baseline, candidates, fit)
+
+
+def _inertia_in(chosen: CandidateFit, fit: RigData, val: RigData) -> bool:
+    """Does the chosen model, refitted with the moving mass free, show inertia (mass at
+    least 3 standard deviations above zero, its force at least :data:`MIN_INERTIA_SHARE`
+    of the force's spread)?"""
+    linear = dict(chosen.values)
+    linear["f0"], linear["m"] = chosen.values["preload_n"], chosen.values["moving_mass_kg"]
+    c = _candidate(chosen.effects, fit, val, linear, True)
+    m, sd = c.values["moving_mass_kg"], c.std.get("moving_mass_kg", np.inf)
+    share = m * float(np.std(fit.acceleration)) / max(float(np.std(fit.force)), 1e-300)
+    return bool(m > 3.0 * sd and share >= MIN_INERTIA_SHARE)
 
 
 #: Order of the autoregressive whitening filter of the held-out comparison.
