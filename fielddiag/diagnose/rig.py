@@ -57,6 +57,10 @@ MIN_INERTIA_SHARE = 0.01
 #: a record's first this long of motion (after any still start) and the same span before
 #: any part of it only carry the states; their force is not scored (for every model alike).
 WARMUP_S = 0.5
+#: Smallest yield travel a rig fit resolves, as a share of the largest travel per sample.
+MIN_YIELD_SAMPLE_TRAVEL = 0.05
+#: Samples a hysteresis' nonlinear parameters are searched on (the first of a longer record).
+MAX_SEARCH_SAMPLES = 6000
 #: Start values of a hysteresis' yield travel, as shares of the displacement's std
 #: (screened: the search starts from the best).
 YIELD_STARTS = tuple(np.geomspace(0.002, 0.3, 7))
@@ -419,7 +423,7 @@ def _start_values(model: ForceModel, data: RigData, linear: dict[str, float]) ->
             base.append(spec.typical)
     starts = [np.array([linear.get("f0", 0.0), linear.get("m", 0.0), *base])]
     for key in model.param_keys:
-        if key.endswith(".yield_displacement_m"):
+        if key.endswith(".yield_displacement_m") and key not in linear:
             # a hysteresis' yield travel: anywhere from far below a sample's travel (a
             # sharp friction-like loop) to a good share of the stroke
             j = 2 + model.index(key)
@@ -480,13 +484,25 @@ def fit_rig_model(
     model = _model_for(effects)
     lower = np.concatenate(([-np.inf, 0.0], model.lower))
     upper = np.concatenate(([np.inf, np.inf], model.upper))
+    for key in model.param_keys:
+        if key.endswith(".yield_displacement_m"):
+            # a pre-yield travel far below the travel of one sample is not resolved by
+            # the data (the loop is then a step), and would only cost integration steps
+            j = 2 + model.index(key)
+            travel = float(np.max(np.abs(data.velocity))) / data.sample_rate_hz
+            lower[j] = max(lower[j], MIN_YIELD_SAMPLE_TRAVEL * travel)
     # variable projection: the force is proportional to each force-scaled parameter
     # (ParamSpec.scales_with_force) whose term's states, if any, do not depend on it (a
     # hysteresis' force level, given its state), so linear in F0, m and those; only the
     # rest (a bump stop's gap, friction's smoothing velocity, a hysteresis' yield travel)
     # is searched, the linear ones solved by bounded least squares at every step of it
     starts = _start_values(model, data, linear or {})
-    state_free = _state_free_params(model, starts[0][2:], data)
+    # a hysteresis' states are integrated along the whole path at every step of the search:
+    # on a long record the nonlinear parameters are searched on its first part only
+    search = data
+    if model.n_states and data.n > MAX_SEARCH_SAMPLES:
+        search = data.part(0, MAX_SEARCH_SAMPLES)
+    state_free = _state_free_params(model, starts[0][2:], search)
     linear_mask = np.concatenate(([True, True], [
         spec.scales_with_force and ok for spec, ok in zip(model.specs, state_free, strict=True)
     ]))
@@ -496,54 +512,62 @@ def fit_rig_model(
     nonlin = ~linear_mask & free
 
     lin_idx = np.flatnonzero(lin)
-    noise_cov = _noise_covariance(model, data, lin_idx)
     term_of = np.array(["", "", *model.param_terms])
     moving = np.isin(term_of[lin_idx], sorted({term_of[i] for i in np.flatnonzero(nonlin)}))
-    base: dict[str, np.ndarray] = {}
 
-    def solve_linear(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Best linear parameters for the nonlinear ones in ``z``; (z, filtered residual).
+    def make_solver(d: RigData):
+        noise_cov = _noise_covariance(model, d, lin_idx)
+        base: dict[str, np.ndarray] = {}
 
-        With every force-scaled parameter at zero the model's force is zero, so the
-        residual is the filtered force and the filtered Jacobian columns are the basis;
-        only the columns of terms with a nonlinear parameter change between calls."""
-        z = z.copy()
-        z[lin] = 0.0
-        if "a" not in base:
-            _, jac = _residual_and_jac(model, z, data, state_jacobian=False)
-            base["a"] = -jac[:, lin_idx]
-        elif moving.any():
-            _, dth = model_force(model, z[2:], data, state_jacobian=False)
-            cols = dth[:, lin_idx[moving] - 2]
-            base["a"][:, moving] = -data.lowpass(cols)
-        a = base["a"]
-        if not np.all(np.isfinite(a)):  # pragma: no cover - guarded search
-            # states integrated out of their stable range (a yield travel far below a
-            # sample's travel): a poor, finite cost steers the search back
-            return z, 10.0 * data.force
-        with np.errstate(over="ignore", invalid="ignore"):
-            scale = np.sqrt(np.sum(a * a, axis=0))
-        if not np.all(np.isfinite(scale)):
-            return z, 10.0 * data.force
-        scale[scale == 0] = 1.0
-        a_s = a / scale
-        bounds = (lower[lin] * scale, upper[lin] * scale)
-        sol = None
-        if noise_cov is not None:
-            # errors in variables: the sensor noise in x, v, a (and x^3) adds n * Sigma to
-            # A'A; minimise t'(A'A - n Sigma)t - 2 t'A'b, written as a least-squares
-            # problem with the Cholesky factor (falls back when not positive definite)
-            m_mat = a_s.T @ a_s - data.n * noise_cov / np.outer(scale, scale)
-            try:
-                chol = np.linalg.cholesky(m_mat).T
-                rhs = np.linalg.solve(chol.T, a_s.T @ data.force)
-                sol = optimize.lsq_linear(chol, rhs, bounds=bounds, method="bvls")
-            except np.linalg.LinAlgError:
-                sol = None
-        if sol is None:
-            sol = optimize.lsq_linear(a_s, data.force, bounds=bounds, method="bvls")
-        z[lin] = sol.x / scale
-        return z, data.force - a_s @ sol.x
+        def solve_linear(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            """Best linear parameters for the nonlinear ones in ``z``; (z, filtered
+            residual) over ``d``.
+
+            With every force-scaled parameter at zero the model's force is zero, so the
+            residual is the filtered force and the filtered Jacobian columns are the
+            basis; only the columns of terms with a nonlinear parameter change between
+            calls."""
+            z = z.copy()
+            z[lin] = 0.0
+            if "a" not in base:
+                _, jac = _residual_and_jac(model, z, d, state_jacobian=False)
+                base["a"] = -jac[:, lin_idx]
+            elif moving.any():
+                _, dth = model_force(model, z[2:], d, state_jacobian=False)
+                cols = dth[:, lin_idx[moving] - 2]
+                base["a"][:, moving] = -d.lowpass(cols)
+            a = base["a"]
+            with np.errstate(over="ignore", invalid="ignore"):
+                scale = np.sqrt(np.sum(a * a, axis=0))
+            if not (np.all(np.isfinite(a)) and np.all(np.isfinite(scale))):
+                # states integrated out of their stable range (a yield travel far below
+                # a sample's travel): a poor, finite cost steers the search back
+                return z, 10.0 * d.force
+            scale[scale == 0] = 1.0
+            a_s = a / scale
+            bounds = (lower[lin] * scale, upper[lin] * scale)
+            sol = None
+            if noise_cov is not None:
+                # errors in variables: the sensor noise in x, v, a (and x^3) adds
+                # n * Sigma to A'A; minimise t'(A'A - n Sigma)t - 2 t'A'b, written as a
+                # least-squares problem with the Cholesky factor (falls back when not
+                # positive definite)
+                m_mat = a_s.T @ a_s - d.n * noise_cov / np.outer(scale, scale)
+                try:
+                    chol = np.linalg.cholesky(m_mat).T
+                    rhs = np.linalg.solve(chol.T, a_s.T @ d.force)
+                    sol = optimize.lsq_linear(chol, rhs, bounds=bounds, method="bvls")
+                except np.linalg.LinAlgError:
+                    sol = None
+            if sol is None:
+                sol = optimize.lsq_linear(a_s, d.force, bounds=bounds, method="bvls")
+            z[lin] = sol.x / scale
+            return z, d.force - a_s @ sol.x
+
+        return solve_linear
+
+    solve_linear = make_solver(data)
+    solve_search = solve_linear if search is data else make_solver(search)
 
     starts = [_inside(z0, lower, upper) for z0 in starts]
     for z0 in starts:
@@ -551,7 +575,7 @@ def fit_rig_model(
     if model.n_states and len(starts) > 1:
         # a hysteresis' yield travel: screened on a grid (one integration of the states
         # each), the search started from the best point only
-        costs = [float(np.sum(solve_linear(z0)[1] ** 2)) for z0 in starts]
+        costs = [float(np.sum(solve_search(z0)[1] ** 2)) for z0 in starts]
         starts = [starts[int(np.argmin(costs))]]
     best_z, best_cost = None, np.inf
     for z0 in starts:
@@ -559,7 +583,7 @@ def fit_rig_model(
             def reduced(q: np.ndarray, z0=z0) -> np.ndarray:
                 zz = z0.copy()
                 zz[nonlin] = q
-                return solve_linear(zz)[1]
+                return solve_search(zz)[1]
 
             sol = optimize.least_squares(reduced, z0[nonlin], bounds=(lower[nonlin],
                                          upper[nonlin]), x_scale=np.abs(z0[nonlin]) + 1e-6,
@@ -662,9 +686,11 @@ def _named(model: ForceModel, z: np.ndarray) -> dict[str, float]:
 
 
 def _at_bound(
-    model: ForceModel, z: np.ndarray, std: np.ndarray, effects: Sequence[str]
+    model: ForceModel, z: np.ndarray, std: np.ndarray, effects: Sequence[str],
+    displacement: np.ndarray | None = None,
 ) -> tuple[str, ...]:
-    """Effect parameters not significantly away from a bound (a physical limit)."""
+    """Effect parameters not significantly away from a bound (a physical limit), or
+    unphysical over the recorded ``displacement`` (a friction level turning negative)."""
     pinned = []
     for i, (key, spec) in enumerate(zip(model.param_keys, model.specs, strict=True)):
         if key.split(".")[0] not in effects:
@@ -681,6 +707,13 @@ def _at_bound(
                 pinned.append(key)
         if spec.name == "cubic_stiffness_n_per_m3" and v < 0:
             pinned.append(key)  # a softening spring is not a progressive spring
+        if spec.name == "friction_gradient_n_per_m" and displacement is not None:
+            # the friction level F_f + g r must stay positive over the stroke
+            level0 = z[2 + model.index(key.replace("friction_gradient_n_per_m",
+                                                   "friction_force_n"))]
+            ends = level0 + v * np.array([np.min(displacement), np.max(displacement)])
+            if np.min(ends) <= 0.0:
+                pinned.append(key)
     return tuple(pinned)
 
 
@@ -705,7 +738,7 @@ def _candidate(
         nrmse_validation=nrmse(res_val, val.force),
         residual_validation=res_val,
         n_params=z.size,
-        at_bound=_at_bound(model, z, std, effects),
+        at_bound=_at_bound(model, z, std, effects, fit.displacement),
         extra={"model": model, "z": z},
     )
 
@@ -965,19 +998,25 @@ def _select_among(effects: Sequence[str], baseline: CandidateFit, fit: RigData, 
     """Fit every single effect and pair, and choose (:func:`_select_whitened`).
 
     A pair with an effect that has internal states (a hysteresis, the costly fits) is tried
-    only where that effect alone predicts the held-out data significantly better than the
-    linear model."""
+    only where both its effects alone predict the held-out data significantly better than
+    the linear model."""
     linear = {k: v for k, v in baseline.values.items()}
     linear["f0"], linear["m"] = baseline.values["preload_n"], baseline.values["moving_mass_kg"]
     singles = {e: _candidate((e,), fit, val, linear, fit_mass) for e in effects}
     candidates = list(singles.values())
     if max_pair:
+        helps = {e: compare(baseline, c).beats(c.n_params - baseline.n_params)
+                 for e, c in singles.items()}
         for pair in itertools.combinations(effects, 2):
-            stateful = [e for e in pair if get_effect(e).n_states]
-            if any(not compare(baseline, singles[e]).beats(
-                    singles[e].n_params - baseline.n_params) for e in stateful):
+            if any(get_effect(e).n_states for e in pair) and not all(helps[e] for e in pair):
                 continue
-            candidates.append(_candidate(pair, fit, val, linear, fit_mass))
+            # started from the two single fits (a hysteresis' yield travel then needs no
+            # screening)
+            start = dict(linear)
+            for e in pair:
+                start.update({k: v for k, v in singles[e].values.items()
+                              if k.startswith(e + ".")})
+            candidates.append(_candidate(pair, fit, val, start, fit_mass))
     return _select_whitened(baseline, candidates, fit)
 
 

@@ -42,9 +42,9 @@ class DahlFriction(Effect):
     n_states = 1
     linear_in_params = False
     params = (
-        ParamSpec("friction_force_n", "N", -INF, INF, 50.0, True, "friction force at zero",
+        ParamSpec("friction_force_n", "N", 0.0, INF, 50.0, True, "friction force at zero",
                   "drive slowly through the whole stroke in both directions",
-                  valid_low=None),
+                  significant=True),
         ParamSpec("friction_gradient_n_per_m", "N/m", -INF, INF, 0.0, True,
                   "friction gradient along the stroke",
                   "drive slowly through the whole stroke in both directions", default=0.0),
