@@ -322,7 +322,7 @@ def _equation_error_fit(
     loaded = [k for k, p in enumerate(prepared) if p.fit.added_mass_kg != 0.0] if absolute else []
 
     def stack(part: str):
-        cols = {"r": [], "v": [], "x": [], "a": [], "dm": [], "sess": []}
+        cols = {"r": [], "v": [], "x": [], "a": [], "dm": [], "sess": [], "fs": []}
         for k, p in enumerate(prepared):
             d = getattr(p, part)
             r, rdot, x2, a2 = _states(d)
@@ -332,6 +332,7 @@ def _equation_error_fit(
             cols["a"].append(a2)
             cols["dm"].append(np.full(r.size, d.added_mass_kg))
             cols["sess"].append(np.full(r.size, k))
+            cols["fs"].append(np.full(r.size, d.sample_rate_hz))
         return {key: np.concatenate(v) for key, v in cols.items()}
 
     fit, val = stack("fit"), stack("val")
@@ -371,7 +372,8 @@ def _equation_error_fit(
         # shrinks the mass to shrink the residual.)
         th, m, r0 = split(z)
         off = r0[d["sess"]]
-        f, dst, dth = model.force(d["r"] + off, d["v"], d["x"], th)
+        f, dst, dth = _path_force(model, d["r"] + off, d["v"], d["x"], th, d["sess"],
+                                  d["fs"])
         g = GRAVITY if absolute else 0.0
         mt = m + d["dm"]
         e = d["a"] + (d["dm"] * g - f) / mt
@@ -397,6 +399,25 @@ def _equation_error_fit(
     if absolute:
         values["body_mass_kg"] = float(m)
     return _EquationErrorFit(values, residual(sol.x, val))
+
+
+def _path_force(model: ForceModel, r: np.ndarray, rdot: np.ndarray, x2: np.ndarray,
+                th: np.ndarray, session: np.ndarray, rate_hz: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The model's force on stacked drives; internal states integrated per drive (from
+    rest at its first sample)."""
+    if model.n_states == 0:
+        return model.force(r, rdot, x2, th)
+    f = np.empty(r.size)
+    dst = np.empty((r.size, 3))
+    dth = np.empty((r.size, model.n_params))
+    bounds = np.flatnonzero(np.diff(session)) + 1
+    for sl in np.split(np.arange(r.size), bounds):
+        if sl.size == 0:
+            continue
+        a, b, c, _ = model.force_along_path(r[sl], rdot[sl], x2[sl], th, float(rate_hz[sl[0]]))
+        f[sl], dst[sl], dth[sl] = a, b, c
+    return f, dst, dth
 
 
 # ----------------------------------------------------------------------------- result
@@ -832,7 +853,7 @@ def _model_static_offset(model: ForceModel, th: np.ndarray, load_n: float) -> fl
         return 0.0
 
     def net(r: float) -> float:
-        return float(model.force(r, 0.0, r, th)[0][0]) - load_n
+        return model.static_force(r, r, th) - load_n
 
     try:
         return float(brentq(net, -0.5, 0.5, xtol=1e-7))
@@ -870,7 +891,8 @@ def _departure(
             g = GRAVITY if "body_mass_kg" in vals else 0.0
             load = 0.0 if part.ride_height_restored else part.added_mass_kg * g
             r = r + _model_static_offset(model, th, load)
-            f, _, _ = model.force(r, rdot, x2, th)
+            f = model.force_along_path(r, rdot, x2, th, part.sample_rate_hz,
+                                       state_jacobian=False)[0]
             rs.append(r)
             vs.append(rdot)
             ds.append((mass + part.added_mass_kg) * a2 + part.added_mass_kg * GRAVITY - f)
@@ -1059,19 +1081,28 @@ def diagnose_drives(
     say("testing each effect against the residual's signature")
     absolute = mode == "pair"
     ee_base = _equation_error_fit((), prepared, coupling, absolute)
-    combos = [(e,) for e in effects] + list(itertools.combinations(effects, 2))
     screening: dict[str, dict[str, float]] = {}
     ee_fits: dict[tuple[str, ...], _EquationErrorFit] = {}
     mse_b = float(np.mean(ee_base.residual_validation**2))
-    for combo in combos:
+
+    def screen(combo: tuple[str, ...]) -> None:
+        """The equation-error fit of ``combo``: its signature and the grey fit's start.
+        Every single effect is screened; a pair only when it is fitted (the library's
+        pairs grow as its square)."""
+        start = dict(ee_base.values)
+        for e in combo:
+            start.update(ee_fits[(e,)].values if (e,) in ee_fits else {})
         try:
-            ee = _equation_error_fit(combo, prepared, coupling, absolute, ee_base.values)
+            ee = _equation_error_fit(combo, prepared, coupling, absolute, start)
         except (ValueError, np.linalg.LinAlgError):
-            continue
+            return
         ee_fits[combo] = ee
         gain = 1.0 - float(np.mean(ee.residual_validation**2)) / mse_b
         t = paired_block_t(ee_base.residual_validation, ee.residual_validation)
         screening["+".join(combo)] = {"gain": gain, "t": t}
+
+    for e in effects:
+        screen((e,))
     fits = [base]
 
     def grey(combo: tuple[str, ...], on: Sequence[_Prepared] = prepared,
@@ -1081,6 +1112,8 @@ def diagnose_drives(
         say(f"fitting {what}" + (f" to drives corrected for a {_DATA_LABEL[data.kind]}"
                                  if data is not None else ""))
         if start is None:
+            if len(combo) > 1 and combo not in ee_fits:
+                screen(combo)
             start = ee_fits[combo].values if combo in ee_fits else _initial_from(base)
         try:
             return _grey_fit(combo, on, coupling, start, 2, mass_bounds, data)
@@ -1405,7 +1438,7 @@ def _acts_on_position(fit: _Fit) -> bool:
     vals = fit.candidate.values
     th = np.array([vals.get(k, 0.0) for k in model.param_keys])
     r = np.linspace(-TRAVEL_BOUND_M, TRAVEL_BOUND_M, 41)
-    f = np.array([model.force(x, 0.0, x, th)[0][0] for x in r])
+    f = np.array([model.static_force(x, x, th) for x in r])
     line = np.polyval(np.polyfit(r, f, 1), r)
     return bool(np.max(np.abs(f - line)) > 1e-3 * max(np.max(np.abs(f)), 1e-9))
 

@@ -24,6 +24,10 @@ from fielddiag.errors import FieldDiagError
 
 __all__ = ["ForceModel", "linear_model", "model_from_sim", "split_shape"]
 
+#: Largest product of an internal state's rate [1/s] and the RK4 step [s] (see
+#: :meth:`ForceModel.state_substeps`).
+STATE_RATE_STEP = 1.0
+
 
 def _force_many(r, rd, x2, theta, consts):  # pragma: no cover - numba template
     n = r.shape[0]
@@ -437,9 +441,11 @@ class ForceModel:
         Returns
         -------
         int
-            ``ceil(step_s * rate / 0.5)`` with ``rate`` the fastest state rate the effects
-            report (:meth:`~fielddiag.effects.base.Effect.speed_bounds`, scaled from
-            :data:`~fielddiag.effects.base.RATE_BOUND_MPS` to ``max_rate_mps``), 1 to 200.
+            ``ceil(step_s * rate / STATE_RATE_STEP)`` with ``rate`` the fastest state rate
+            the effects report (:meth:`~fielddiag.effects.base.Effect.speed_bounds`,
+            scaled from :data:`~fielddiag.effects.base.RATE_BOUND_MPS` to
+            ``max_rate_mps``), 1 to 200. RK4 is stable to a step of 2.8 / rate; the
+            states relax towards their saturation, so 1 / rate keeps them accurate.
         """
         from fielddiag.effects.base import RATE_BOUND_MPS
 
@@ -452,7 +458,7 @@ class ForceModel:
             p0 = p1
         if not np.isfinite(rate):
             return 200
-        return int(min(200, max(1, math.ceil(step_s * rate / 0.5))))
+        return int(min(200, max(1, math.ceil(step_s * rate / STATE_RATE_STEP))))
 
     def force_along_path(
         self,
