@@ -210,7 +210,7 @@ def _hysteretic(s, car, rng):
 def _bouc_wen(s, car, rng):
     return {"hysteretic_force_n": s * 0.007 * car.body_mass_kg * GRAVITY_MPS2,
             "yield_displacement_m": float(rng.uniform(5e-4, 3e-3)),
-            "exponent": float(rng.uniform(1.0, 3.0))}
+            "yield_exponent": float(rng.uniform(1.0, 3.0))}
 
 
 def _digressive(s, car, rng):
@@ -226,6 +226,12 @@ def _top_mount(s, car, rng):
     # the mount's corner k_m / (2 pi C2) falls from ~60 body frequencies (s = 1) to ~6
     return {"suspension_damping_ns_per_m": car.suspension_damping_ns_per_m,
             "mount_stiffness_n_per_m": 60.0 / s * car.suspension_stiffness_n_per_m}
+
+
+def _travel_damping(s, car, rng):
+    # s = 1: damping 10 % higher at 30 mm from the ride height (it grows as travel^2)
+    return {"extra_damping_ns_per_m": s * 0.1 * car.suspension_damping_ns_per_m,
+            "reference_travel_m": 0.03}
 
 
 def _generic(name: str) -> Recipe:
@@ -255,6 +261,7 @@ STRENGTH_RECIPES: dict[str, Recipe] = {
     "bouc_wen": _bouc_wen,
     "digressive_damping": _digressive,
     "series_top_mount": _top_mount,
+    "travel_dependent_damping": _travel_damping,
 }
 
 
@@ -488,8 +495,8 @@ effect registry
           asymmetric damper C2 (1 -+ a), a = 0.8 tanh(s / 8); quadratic s x 600 N s2/m2 x
           C2 / 1800; Dahl hysteresis s x 0.1 K2; Bouc-Wen s x 0.7 % of the sprung weight,
           yield 0.5-3 mm, exponent 1-3; digressive damper knees 0.05-0.3 m/s, drops
-          a x (0.5-1) x C2; top mount in series with C2, k_m = 60 K2 / s; a family without
-          a recipe: s x typical values)
+          a x (0.5-1) x C2; top mount in series with C2, k_m = 60 K2 / s; damping growing
+          with travel s x 0.1 C2 at 30 mm; a family without a recipe: s x typical values)
   nuisances, each independently: gain change {100 * GAIN_CHANGE[0]:g}-\
 {100 * GAIN_CHANGE[1]:g} % on one channel of the 'after' drive (p = \
 {NUISANCE_PROBABILITY['gain_change']:g}),

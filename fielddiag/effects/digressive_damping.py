@@ -41,7 +41,7 @@ def _digressive_damping(r, rd, x2, p, c, dp):  # pragma: no cover - compiled
     h, dh = _hinge(rd - p[2], c[0])
     dp[2] = -p[3] * dh
     dp[3] = h
-    return p[3] * h, 0.0, -p[3] * dh, 0.0
+    return p[3] * h, 0.0, p[3] * dh, 0.0
 
 
 @register_effect

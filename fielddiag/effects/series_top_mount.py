@@ -13,7 +13,7 @@ from fielddiag.effects.base import INF, Effect, ParamSpec, register_effect
 @njit(cache=True, nogil=True)
 def _series_top_mount(r, rd, x2, z, p, c, dp, dz):  # pragma: no cover - compiled
     # state z[0] = u, the mount's deflection; the damper carries k_m u = c (rdot - du/dt)
-    dz[0] = rd - p[1] / p[0] * z[0]
+    dz[0] = rd - p[1] / max(p[0], 1e-9) * z[0]
     dp[0] = 0.0  # through the state (forward differences in the fit)
     dp[1] = -z[0]
     return -p[1] * z[0], 0.0, 0.0, 0.0
@@ -59,7 +59,7 @@ class SeriesTopMount(Effect):
         (float, float, float)
             ``(k_m, c, k_m / c)``.
         """
-        return values[1], values[0], values[1] / values[0]
+        return values[1], values[0], values[1] / max(values[0], 1e-9)
 
     def start_values(self, r_m, start):
         """Start values: the linear damping and a mount 8x the spring's stiffness.
