@@ -287,7 +287,8 @@ def _log_uniform(rng: np.random.Generator, lo: float, hi: float) -> float:
     return float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
 
 
-def draw_case(seed: int, *, duration_s: float | None = None) -> Case:
+def draw_case(seed: int, *, duration_s: float | None = None,
+              families: tuple[str, ...] | None = None) -> Case:
     """Draw one case from ``seed`` (deterministic; see :data:`METHOD`).
 
     Parameters
@@ -297,6 +298,9 @@ def draw_case(seed: int, *, duration_s: float | None = None) -> Case:
     duration_s : float or None
         Override the drawn duration (short cases for tests); everything else is drawn
         exactly as without it.
+    families : tuple of str or None
+        Draw the effects from these families only (a run that concentrates on new
+        families); None: every family of the registry.
 
     Returns
     -------
@@ -335,7 +339,8 @@ def draw_case(seed: int, *, duration_s: float | None = None) -> Case:
     u = rp.random()
     n_eff = 0 if u < PHYSICS_PROBABILITY["linear"] else (
         1 if u < PHYSICS_PROBABILITY["linear"] + PHYSICS_PROBABILITY["single"] else 2)
-    fams = effect_families()
+    fams = effect_families() if families is None else tuple(sorted(families))
+    n_eff = min(n_eff, len(fams))
     names = sorted(str(n) for n in rp.choice(fams, size=n_eff, replace=False))
     effects, strengths = [], []
     for name in names:
