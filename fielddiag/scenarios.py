@@ -447,7 +447,7 @@ def _cases() -> list[Scenario]:
         Scenario(
             "travel_dependent_damping",
             "damping growing with travel, a position-sensitive damper (outside the library)",
-            effects=(("travel_dependent_damping", {"extra_damping_ns_per_m": 5400.0,
+            effects=(("travel_dependent_damping", {"extra_damping_ns_per_m": 1800.0,
                                                    "reference_travel_m": 0.03}),),
             bumps=6,
             seed=61,

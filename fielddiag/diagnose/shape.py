@@ -279,8 +279,9 @@ def describe_shape(model: ShapeModel, r_m: np.ndarray, rdot_mps: np.ndarray,
             where, change = hit
             how = "steeper" if change > 0 else "softer"
             size = f"{100 * abs(change):.0f} % {how} than the linear spring" if k else how
-            out.append(f"the force rises {size} beyond {1e3 * where:.0f} mm of {word} "
-                       "(from the unloaded ride height)")
+            span = (f"beyond {1e3 * where:.0f} mm of {word} (from the unloaded ride height)"
+                    if where >= 1e-3 else f"throughout {word}")
+            out.append(f"the force rises {size} {span}")
     for side, q in (("compression", 0.005), ("rebound", 0.995)):
         v_end = float(np.quantile(rdot_mps, q))
         if abs(v_end) < 1e-6:
@@ -294,7 +295,8 @@ def describe_shape(model: ShapeModel, r_m: np.ndarray, rdot_mps: np.ndarray,
             where, change = hit
             how = "grows" if change > 0 else "fades"
             size = f" by {100 * abs(change):.0f} %" if c else ""
-            out.append(f"in {side} the damping {how}{size} above {where:.2g} m/s")
+            span = f"above {where:.2g} m/s" if where >= 0.01 else "at every speed"
+            out.append(f"in {side} the damping {how}{size} {span}")
     # damping that depends on where the suspension is (a position-sensitive damper)
     v_span = float(np.quantile(np.abs(rdot_mps), 0.9)) or 1e-3
     vv = np.linspace(-v_span, v_span, 21)
