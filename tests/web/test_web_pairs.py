@@ -91,14 +91,14 @@ def test_identification_preselects_the_partner_by_vehicle_not_by_name(
     assert js_errors(d) == []
 
 
-@pytest.mark.xfail(run=False, reason=(
-    "known bug, open: after a session page was shown, the diagnosis page started from it "
-    "stops receiving updates a few seconds into its job (the job finishes, the server is "
-    "idle, the socket stays connected; the same diagnosis started on a freshly loaded "
-    "diagnosis page completes). Reproduced on the commit before this session's work; not "
-    "run: it would only wait out its 240 s"))
 def test_diagnosis_opened_from_a_session_keeps_the_pair(page, sessions_root: Path,
                                                         server_of) -> None:
+    """Diagnose reached from a session page: the pair is preselected, and the page shows
+    the result when the job ends. It used to stop updating: the session page had forked
+    the session reader worker, which kept copies of the browser's keep-alive connections;
+    closed by the server they stayed open, and the browser's request for the results'
+    components waited in one of them forever (nicegui handles its messages in order, so
+    every later update waited behind it)."""
     if not diagnosis_backend().available:
         pytest.skip(diagnosis_backend().reason)
     server = server_of(sessions_root)
