@@ -39,17 +39,33 @@ from fielddiag.diagnose.rig_band import RigBand, choose_rig_band, lowpass, zero_
 from fielddiag.diagnose.selection import (
     CandidateFit,
     Selection,
+    compare,
     confidence,
     nrmse,
     select_model,
 )
-from fielddiag.errors import InsufficientDataError
+from fielddiag.effects import get_effect
+from fielddiag.errors import FieldDiagError, InsufficientDataError
 from fielddiag.identify.terms import ForceModel, make_term, split_shape
 
 #: Effect terms tried by default, in the diagnosis library's names.
-RIG_EFFECTS = ("coulomb_friction", "cubic_stiffness", "bump_stop", "asymmetric_damping")
+RIG_EFFECTS = ("coulomb_friction", "cubic_stiffness", "bump_stop", "asymmetric_damping",
+               "dahl_friction")
 #: The moving mass is kept when its force is at least this share of the force's spread.
 MIN_INERTIA_SHARE = 0.01
+#: Warm-up [s]: the internal states of a hysteresis start at rest, unknown to the data, so
+#: a record's first this long of motion (after any still start) and the same span before
+#: any part of it only carry the states; their force is not scored (for every model alike).
+WARMUP_S = 0.5
+#: Smallest yield travel a rig fit resolves, as a share of the largest travel per sample.
+MIN_YIELD_SAMPLE_TRAVEL = 0.05
+#: Samples a hysteresis' nonlinear parameters are searched on (the first of a longer record).
+MAX_SEARCH_SAMPLES = 6000
+#: Start values of a hysteresis' yield travel, as shares of the displacement's std
+#: (screened: the search starts from the best).
+YIELD_STARTS = tuple(np.geomspace(0.002, 0.3, 7))
+#: The rig counts as moving once its speed exceeds this share of its 99th-percentile speed.
+MOTION_START_SHARE = 0.05
 
 
 @dataclass(frozen=True)
@@ -84,6 +100,31 @@ class RigData:
     displacement_unit: str = "m"
     force_raw: np.ndarray | None = None
     band: RigBand | None = None
+    lead_displacement: np.ndarray | None = None
+    lead_velocity: np.ndarray | None = None
+
+    @property
+    def n_lead(self) -> int:
+        """Samples of motion before the first one (the internal states' warm-up)."""
+        return 0 if self.lead_displacement is None else int(self.lead_displacement.size)
+
+    @property
+    def warmup_samples(self) -> int:
+        """Samples the internal states run through before a part's first sample."""
+        return int(np.ceil(WARMUP_S * self.sample_rate_hz))
+
+    def path(self) -> tuple[np.ndarray, np.ndarray]:
+        """Displacement and velocity with the lead-in in front (the states' whole path).
+
+        Returns
+        -------
+        (numpy.ndarray, numpy.ndarray)
+            ``n_lead + n`` samples each.
+        """
+        if not self.n_lead:
+            return self.displacement, self.velocity
+        return (np.concatenate((self.lead_displacement, self.displacement)),
+                np.concatenate((self.lead_velocity, self.velocity)))
 
     @property
     def cutoff_hz(self) -> float | None:
@@ -119,6 +160,11 @@ class RigData:
         """
         sl = slice(start, stop)
         raw = None if self.force_raw is None else self.force_raw[sl]
+        # the motion just before the part (at most the warm-up): the internal states of a
+        # hysteresis run through it, its force is not scored
+        px, pv = self.path()
+        s0 = self.n_lead + start
+        lead = slice(max(0, s0 - self.warmup_samples), s0)
         force = self.force[sl] if raw is None else self.lowpass(raw)
         return RigData(
             self.sample_rate_hz,
@@ -131,6 +177,8 @@ class RigData:
             self.displacement_unit,
             raw,
             self.band,
+            px[lead].copy() if s0 > lead.start else None,
+            pv[lead].copy() if s0 > lead.start else None,
         )
 
     @property
@@ -148,6 +196,24 @@ def _edge_margin(sample_rate_hz: float, cutoff_hz: float | None, n: int) -> int:
     """Samples dropped at each end of a record: the filter's settling near the ends."""
     settle = 8 if cutoff_hz is None else int(np.ceil(2.0 * sample_rate_hz / cutoff_hz))
     return int(min(max(settle, 8), n // 20))
+
+
+def _after_warmup(data: RigData) -> RigData:
+    """The record from the end of its warm-up on: the still samples at its start and the
+    first :data:`WARMUP_S` of motion become the lead-in (at most a third of the record).
+
+    Parameters
+    ----------
+    data : RigData
+
+    Returns
+    -------
+    RigData
+    """
+    speed = np.abs(data.velocity)
+    moving = np.flatnonzero(speed > MOTION_START_SHARE * np.quantile(speed, 0.99))
+    start = (int(moving[0]) if moving.size else 0) + data.warmup_samples
+    return data.part(min(start, data.n // 3), data.n)
 
 
 def rig_data_from_displacement(
@@ -199,7 +265,7 @@ def rig_data_from_displacement(
     data = RigData(fs, np.asarray(time_s, float), f, x, v, a, force_unit,
                    displacement_unit, f, band)
     k = _edge_margin(fs, band.cutoff_hz, data.n)
-    return data.part(k, data.n - k)
+    return _after_warmup(data.part(k, data.n - k))
 
 
 def rig_data_from_acceleration(
@@ -269,7 +335,7 @@ def rig_data_from_acceleration(
         band,
     )
     k = _edge_margin(fs, None if band is None else band.cutoff_hz, data.n)
-    return data.part(k, data.n - k)
+    return _after_warmup(data.part(k, data.n - k))
 
 
 # ----------------------------------------------------------------------------- fitting
@@ -279,12 +345,50 @@ def _model_for(effects: Sequence[str]) -> ForceModel:
     return model
 
 
-def _residual_and_jac(model: ForceModel, z: np.ndarray, data: RigData):
+def model_force(model: ForceModel, theta: np.ndarray, data: RigData, *,
+                state_jacobian: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """The model's force ``F(r, rdot)`` over a record and its derivatives in ``theta``.
+
+    A memoryless model is evaluated sample by sample. A model with internal states (a
+    hysteresis) integrates them along the measured motion
+    (:meth:`~fielddiag.effects.model.ForceModel.force_along_path`), starting at rest at the
+    first sample of the record's lead-in (:attr:`RigData.n_lead`), and keeps the samples
+    after it.
+
+    Parameters
+    ----------
+    model : ForceModel
+    theta : numpy.ndarray
+        Parameter values in model order.
+    data : RigData
+        The record (or part).
+    state_jacobian : bool
+        Derivatives through the states (forward differences, one more integration per
+        parameter of a stateful term); False leaves the kernels' derivatives at frozen
+        states, which are exact for a parameter the states do not depend on.
+
+    Returns
+    -------
+    force : numpy.ndarray, shape (n,)
+    d_params : numpy.ndarray, shape (n, n_params)
+    """
+    if model.n_states == 0:
+        zeros = np.zeros_like(data.displacement)
+        f, _, dth = model.force(data.displacement, data.velocity, zeros, theta)
+        return f, dth
+    x, v = data.path()
+    f, _, dth, _ = model.force_along_path(x, v, 0.0, theta, data.sample_rate_hz,
+                                          state_jacobian=state_jacobian)
+    k = data.n_lead
+    return f[k:], dth[k:]
+
+
+def _residual_and_jac(model: ForceModel, z: np.ndarray, data: RigData, *,
+                      state_jacobian: bool = True):
     """Residual ``force - (F0 + m a - F)`` and its Jacobian in ``z``, both through the
     band's filter (the measured force went through it; the model's force goes too)."""
     f0, m, theta = z[0], z[1], z[2:]
-    zeros = np.zeros_like(data.displacement)
-    fm, _, dth = model.force(data.displacement, data.velocity, zeros, theta)
+    fm, dth = model_force(model, theta, data, state_jacobian=state_jacobian)
     pred_raw = m * data.acceleration - fm
     jac = np.empty((data.n, z.size))
     jac[:, 0] = -1.0
@@ -313,9 +417,23 @@ def _start_values(model: ForceModel, data: RigData, linear: dict[str, float]) ->
             base.append(5.0 * linear.get("linear_spring.suspension_stiffness_n_per_m", 2e4))
         elif spec.name == "gap_m":
             base.append(float(np.quantile(-data.displacement, 0.9)))
+        elif spec.name == "yield_displacement_m":
+            base.append(float(np.median(YIELD_STARTS)) * float(np.std(data.displacement)))
         else:
             base.append(spec.typical)
     starts = [np.array([linear.get("f0", 0.0), linear.get("m", 0.0), *base])]
+    for key in model.param_keys:
+        if key.endswith(".yield_displacement_m") and key not in linear:
+            # a hysteresis' yield travel: anywhere from far below a sample's travel (a
+            # sharp friction-like loop) to a good share of the stroke
+            j = 2 + model.index(key)
+            grid = []
+            for st in starts:
+                for q in YIELD_STARTS:
+                    st = st.copy()
+                    st[j] = q * float(np.std(data.displacement))
+                    grid.append(st)
+            starts = grid
     if "bump_stop.gap_m" in model.param_keys:
         j = 2 + model.index("bump_stop.gap_m")
         for q in (0.7, 0.97):
@@ -366,74 +484,106 @@ def fit_rig_model(
     model = _model_for(effects)
     lower = np.concatenate(([-np.inf, 0.0], model.lower))
     upper = np.concatenate(([np.inf, np.inf], model.upper))
-    # variable projection: the force is proportional to each force-scaled parameter of a
-    # memoryless term (ParamSpec.scales_with_force), so linear in F0, m and those; only
-    # the rest (a bump stop's gap, friction's smoothing velocity) is searched, the linear
-    # ones solved by bounded least squares at every step of that search
-    lin_terms = {t.name for t in model.terms if t.n_states == 0}
+    for key in model.param_keys:
+        if key.endswith(".yield_displacement_m"):
+            # a pre-yield travel far below the travel of one sample is not resolved by
+            # the data (the loop is then a step), and would only cost integration steps
+            j = 2 + model.index(key)
+            travel = float(np.max(np.abs(data.velocity))) / data.sample_rate_hz
+            lower[j] = max(lower[j], MIN_YIELD_SAMPLE_TRAVEL * travel)
+    # variable projection: the force is proportional to each force-scaled parameter
+    # (ParamSpec.scales_with_force) whose term's states, if any, do not depend on it (a
+    # hysteresis' force level, given its state), so linear in F0, m and those; only the
+    # rest (a bump stop's gap, friction's smoothing velocity, a hysteresis' yield travel)
+    # is searched, the linear ones solved by bounded least squares at every step of it
+    starts = _start_values(model, data, linear or {})
+    # a hysteresis' states are integrated along the whole path at every step of the search:
+    # on a long record the nonlinear parameters are searched on its first part only
+    search = data
+    if model.n_states and data.n > MAX_SEARCH_SAMPLES:
+        search = data.part(0, MAX_SEARCH_SAMPLES)
+    state_free = _state_free_params(model, starts[0][2:], search)
     linear_mask = np.concatenate(([True, True], [
-        spec.scales_with_force and term in lin_terms
-        for term, spec in zip(model.param_terms, model.specs, strict=True)
+        spec.scales_with_force and ok for spec, ok in zip(model.specs, state_free, strict=True)
     ]))
     free = np.ones(lower.size, bool)
     free[1] = fit_mass
     lin = linear_mask & free
     nonlin = ~linear_mask & free
-    starts = _start_values(model, data, linear or {})
 
     lin_idx = np.flatnonzero(lin)
-    noise_cov = _noise_covariance(model, data, lin_idx)
     term_of = np.array(["", "", *model.param_terms])
     moving = np.isin(term_of[lin_idx], sorted({term_of[i] for i in np.flatnonzero(nonlin)}))
-    base: dict[str, np.ndarray] = {}
 
-    def solve_linear(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Best linear parameters for the nonlinear ones in ``z``; (z, filtered residual).
+    def make_solver(d: RigData):
+        noise_cov = _noise_covariance(model, d, lin_idx)
+        base: dict[str, np.ndarray] = {}
 
-        With every force-scaled parameter at zero the model's force is zero, so the
-        residual is the filtered force and the filtered Jacobian columns are the basis;
-        only the columns of terms with a nonlinear parameter change between calls."""
-        z = z.copy()
-        z[lin] = 0.0
-        if "a" not in base:
-            _, jac = _residual_and_jac(model, z, data)
-            base["a"] = -jac[:, lin_idx]
-        elif moving.any():
-            zeros = np.zeros_like(data.displacement)
-            _, _, dth = model.force(data.displacement, data.velocity, zeros, z[2:])
-            cols = dth[:, lin_idx[moving] - 2]
-            base["a"][:, moving] = -data.lowpass(cols)
-        a = base["a"]
-        scale = np.sqrt(np.sum(a * a, axis=0))
-        scale[scale == 0] = 1.0
-        a_s = a / scale
-        bounds = (lower[lin] * scale, upper[lin] * scale)
-        sol = None
-        if noise_cov is not None:
-            # errors in variables: the sensor noise in x, v, a (and x^3) adds n * Sigma to
-            # A'A; minimise t'(A'A - n Sigma)t - 2 t'A'b, written as a least-squares
-            # problem with the Cholesky factor (falls back when not positive definite)
-            m_mat = a_s.T @ a_s - data.n * noise_cov / np.outer(scale, scale)
-            try:
-                chol = np.linalg.cholesky(m_mat).T
-                rhs = np.linalg.solve(chol.T, a_s.T @ data.force)
-                sol = optimize.lsq_linear(chol, rhs, bounds=bounds, method="bvls")
-            except np.linalg.LinAlgError:
-                sol = None
-        if sol is None:
-            sol = optimize.lsq_linear(a_s, data.force, bounds=bounds, method="bvls")
-        z[lin] = sol.x / scale
-        return z, data.force - a_s @ sol.x
+        def solve_linear(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            """Best linear parameters for the nonlinear ones in ``z``; (z, filtered
+            residual) over ``d``.
 
+            With every force-scaled parameter at zero the model's force is zero, so the
+            residual is the filtered force and the filtered Jacobian columns are the
+            basis; only the columns of terms with a nonlinear parameter change between
+            calls."""
+            z = z.copy()
+            z[lin] = 0.0
+            if "a" not in base:
+                _, jac = _residual_and_jac(model, z, d, state_jacobian=False)
+                base["a"] = -jac[:, lin_idx]
+            elif moving.any():
+                _, dth = model_force(model, z[2:], d, state_jacobian=False)
+                cols = dth[:, lin_idx[moving] - 2]
+                base["a"][:, moving] = -d.lowpass(cols)
+            a = base["a"]
+            with np.errstate(over="ignore", invalid="ignore"):
+                scale = np.sqrt(np.sum(a * a, axis=0))
+            if not (np.all(np.isfinite(a)) and np.all(np.isfinite(scale))):
+                # states integrated out of their stable range (a yield travel far below
+                # a sample's travel): a poor, finite cost steers the search back
+                return z, 10.0 * d.force
+            scale[scale == 0] = 1.0
+            a_s = a / scale
+            bounds = (lower[lin] * scale, upper[lin] * scale)
+            sol = None
+            if noise_cov is not None:
+                # errors in variables: the sensor noise in x, v, a (and x^3) adds
+                # n * Sigma to A'A; minimise t'(A'A - n Sigma)t - 2 t'A'b, written as a
+                # least-squares problem with the Cholesky factor (falls back when not
+                # positive definite)
+                m_mat = a_s.T @ a_s - d.n * noise_cov / np.outer(scale, scale)
+                try:
+                    chol = np.linalg.cholesky(m_mat).T
+                    rhs = np.linalg.solve(chol.T, a_s.T @ d.force)
+                    sol = optimize.lsq_linear(chol, rhs, bounds=bounds, method="bvls")
+                except np.linalg.LinAlgError:
+                    sol = None
+            if sol is None:
+                sol = optimize.lsq_linear(a_s, d.force, bounds=bounds, method="bvls")
+            z[lin] = sol.x / scale
+            return z, d.force - a_s @ sol.x
+
+        return solve_linear
+
+    solve_linear = make_solver(data)
+    solve_search = solve_linear if search is data else make_solver(search)
+
+    starts = [_inside(z0, lower, upper) for z0 in starts]
+    for z0 in starts:
+        z0[~free] = 0.0
+    if model.n_states and len(starts) > 1:
+        # a hysteresis' yield travel: screened on a grid (one integration of the states
+        # each), the search started from the best point only
+        costs = [float(np.sum(solve_search(z0)[1] ** 2)) for z0 in starts]
+        starts = [starts[int(np.argmin(costs))]]
     best_z, best_cost = None, np.inf
     for z0 in starts:
-        z0 = _inside(z0, lower, upper)
-        z0[~free] = 0.0
         if nonlin.any():
             def reduced(q: np.ndarray, z0=z0) -> np.ndarray:
                 zz = z0.copy()
                 zz[nonlin] = q
-                return solve_linear(zz)[1]
+                return solve_search(zz)[1]
 
             sol = optimize.least_squares(reduced, z0[nonlin], bounds=(lower[nonlin],
                                          upper[nonlin]), x_scale=np.abs(z0[nonlin]) + 1e-6,
@@ -456,6 +606,44 @@ def fit_rig_model(
     except np.linalg.LinAlgError:
         cov[np.ix_(free, free)] = np.nan
     return model, z, cov, s2
+
+
+def _state_free_params(model: ForceModel, theta: np.ndarray, data: RigData) -> list[bool]:
+    """For each parameter: True unless it belongs to a term with internal states whose
+    states change with it (checked along the record: the states with the parameter at
+    zero and at ``theta`` or its typical value). A force-scaled parameter the states do
+    not depend on enters the force linearly (Dahl's stiffness, Bouc-Wen's force level).
+
+    Parameters
+    ----------
+    model : ForceModel
+    theta : numpy.ndarray
+        Parameter values (start values) in model order.
+    data : RigData
+
+    Returns
+    -------
+    list of bool
+    """
+    out = [True] * model.n_params
+    if model.n_states == 0:
+        return out
+    x, v = data.path()
+    fs = data.sample_rate_hz
+    th = np.array(theta, float)
+    for j, (term, spec) in enumerate(zip(model.param_terms, model.specs, strict=True)):
+        if not any(t.name == term and t.n_states for t in model.terms):
+            continue
+        if not spec.scales_with_force:
+            out[j] = False
+            continue
+        a, b = th.copy(), th.copy()
+        a[j] = 0.0
+        b[j] = th[j] if th[j] else spec.typical
+        za = model.force_along_path(x, v, 0.0, a, fs, state_jacobian=False)[3]
+        zb = model.force_along_path(x, v, 0.0, b, fs, state_jacobian=False)[3]
+        out[j] = bool(np.array_equal(za, zb))
+    return out
 
 
 #: Columns of the linear fit that white displacement noise enters, by parameter key.
@@ -498,9 +686,11 @@ def _named(model: ForceModel, z: np.ndarray) -> dict[str, float]:
 
 
 def _at_bound(
-    model: ForceModel, z: np.ndarray, std: np.ndarray, effects: Sequence[str]
+    model: ForceModel, z: np.ndarray, std: np.ndarray, effects: Sequence[str],
+    displacement: np.ndarray | None = None,
 ) -> tuple[str, ...]:
-    """Effect parameters not significantly away from a bound (a physical limit)."""
+    """Effect parameters not significantly away from a bound (a physical limit), or
+    unphysical over the recorded ``displacement`` (a friction level turning negative)."""
     pinned = []
     for i, (key, spec) in enumerate(zip(model.param_keys, model.specs, strict=True)):
         if key.split(".")[0] not in effects:
@@ -517,6 +707,13 @@ def _at_bound(
                 pinned.append(key)
         if spec.name == "cubic_stiffness_n_per_m3" and v < 0:
             pinned.append(key)  # a softening spring is not a progressive spring
+        if spec.name == "friction_gradient_n_per_m" and displacement is not None:
+            # the friction level F_f + g r must stay positive over the stroke
+            level0 = z[2 + model.index(key.replace("friction_gradient_n_per_m",
+                                                   "friction_force_n"))]
+            ends = level0 + v * np.array([np.min(displacement), np.max(displacement)])
+            if np.min(ends) <= 0.0:
+                pinned.append(key)
     return tuple(pinned)
 
 
@@ -529,8 +726,8 @@ def _candidate(
 ) -> CandidateFit:
     model, z, cov, _ = fit_rig_model(effects, fit, linear, fit_mass=fit_mass)
     std = np.sqrt(np.clip(np.diag(cov), 0, None))
-    res_fit, _ = _residual_and_jac(model, z, fit)
-    res_val, _ = _residual_and_jac(model, z, val)
+    res_fit, _ = _residual_and_jac(model, z, fit, state_jacobian=False)
+    res_val, _ = _residual_and_jac(model, z, val, state_jacobian=False)
     names = _named(model, z)
     stds = dict(zip(names, std.tolist(), strict=True))
     return CandidateFit(
@@ -541,7 +738,7 @@ def _candidate(
         nrmse_validation=nrmse(res_val, val.force),
         residual_validation=res_val,
         n_params=z.size,
-        at_bound=_at_bound(model, z, std, effects),
+        at_bound=_at_bound(model, z, std, effects, fit.displacement),
         extra={"model": model, "z": z},
     )
 
@@ -574,7 +771,7 @@ class RigDiagnosis:
         findings = []
         if chosen is not base:
             explained = 1.0 - chosen.mse_validation / base.mse_validation
-            for eff in chosen.effects:
+            for eff in self.effects_by_weight():
                 params, shape = split_shape({
                     k.split(".", 1)[1]: v
                     for k, v in chosen.values.items()
@@ -592,7 +789,7 @@ class RigDiagnosis:
                             if k.startswith(eff + ".")
                         },
                         "where": {"region": self._region(chosen)},
-                        "explanation": _rig_explanation(eff, params, self.data),
+                        "explanation": _rig_explanation(eff, params, self.data, shape),
                     }
                 )
         if self.unexplained is not None:
@@ -635,6 +832,18 @@ class RigDiagnosis:
             "warnings": [],
         }
 
+    def effects_by_weight(self) -> list[str]:
+        """The chosen model's effects, the one that alone predicts the held-out data best
+        first (for a pair, the effect whose removal would cost the most).
+
+        Returns
+        -------
+        list of str
+        """
+        single = {c.effects[0]: c.mse_validation for c, _ in self.selection.ranking
+                  if len(c.effects) == 1}
+        return sorted(self.selection.chosen.effects, key=lambda e: single.get(e, np.inf))
+
     def _band(self) -> dict:
         band = self.data.band
         out = band.to_dict() if band is not None else {"filter": "none", "cutoff_hz": None,
@@ -657,7 +866,8 @@ class RigDiagnosis:
         return None if reg is None else {"displacement": reg["r_m"], "velocity": reg["rdot_mps"]}
 
 
-def _rig_explanation(effect: str, p: dict[str, float], data: RigData) -> str:
+def _rig_explanation(effect: str, p: dict[str, float], data: RigData,
+                     shape: dict[str, float] | None = None) -> str:
     fu, du = data.force_unit, data.displacement_unit
     if effect == "coulomb_friction":
         return (
@@ -679,7 +889,10 @@ def _rig_explanation(effect: str, p: dict[str, float], data: RigData) -> str:
             f"damping differs by direction: {p['compression_damping_ns_per_m']:.4g} in "
             f"compression, {p['rebound_damping_ns_per_m']:.4g} in rebound ({fu} s/{du})"
         )
-    return effect
+    try:
+        return get_effect(effect)().explain({**p, **(shape or {})})
+    except (KeyError, ValueError, FieldDiagError):  # pragma: no cover - unknown name
+        return effect
 
 
 def _unexplained_structure(
@@ -691,7 +904,7 @@ def _unexplained_structure(
     held-out part; if it predicts the held-out residual significantly, structure is left.
     """
     model, z = chosen.extra["model"], chosen.extra["z"]
-    res_fit, _ = _residual_and_jac(model, z, fit)
+    res_fit, _ = _residual_and_jac(model, z, fit, state_jacobian=False)
     dmap = departure_map(fit.displacement, fit.velocity, res_fit, bins=12)
     i = np.clip(np.searchsorted(dmap.r_edges_m, val.displacement) - 1, 0, dmap.mean.shape[0] - 1)
     j = np.clip(np.searchsorted(dmap.rdot_edges_mps, val.velocity) - 1, 0, dmap.mean.shape[1] - 1)
@@ -768,15 +981,55 @@ def diagnose_rig(
     fit_mass = inertia_shown(baseline, fit)
     if not fit_mass:
         baseline = _candidate((), fit, val, {}, fit_mass=False)
-    linear = {k: v for k, v in baseline.values.items()}
-    linear["f0"], linear["m"] = baseline.values["preload_n"], baseline.values["moving_mass_kg"]
-    combos: list[tuple[str, ...]] = [(e,) for e in effects]
-    if max_pair:
-        combos += [c for c in itertools.combinations(effects, 2)]
-    candidates = [_candidate(c, fit, val, linear, fit_mass) for c in combos]
-    sel = _select_whitened(baseline, candidates, fit)
+    sel = _select_among(effects, baseline, fit, val, fit_mass, max_pair)
+    if not fit_mass and sel.chosen is not baseline and _inertia_in(sel.chosen, fit, val):
+        # the linear model's mass was not trusted (it soaks up unmodelled force such as a
+        # hysteresis), but the chosen model, which explains that force, shows inertia:
+        # everything again with the mass in the model
+        fit_mass = True
+        baseline = _candidate((), fit, val, {})
+        sel = _select_among(effects, baseline, fit, val, fit_mass, max_pair)
     unexplained = _unexplained_structure(baseline, sel.chosen, fit, val)
     return RigDiagnosis(sel, data, split, unexplained, fit_mass)
+
+
+def _select_among(effects: Sequence[str], baseline: CandidateFit, fit: RigData, val: RigData,
+                  fit_mass: bool, max_pair: bool) -> Selection:
+    """Fit every single effect and pair, and choose (:func:`_select_whitened`).
+
+    A pair with an effect that has internal states (a hysteresis, the costly fits) is tried
+    only where both its effects alone predict the held-out data significantly better than
+    the linear model."""
+    linear = {k: v for k, v in baseline.values.items()}
+    linear["f0"], linear["m"] = baseline.values["preload_n"], baseline.values["moving_mass_kg"]
+    singles = {e: _candidate((e,), fit, val, linear, fit_mass) for e in effects}
+    candidates = list(singles.values())
+    if max_pair:
+        helps = {e: compare(baseline, c).beats(c.n_params - baseline.n_params)
+                 for e, c in singles.items()}
+        for pair in itertools.combinations(effects, 2):
+            if any(get_effect(e).n_states for e in pair) and not all(helps[e] for e in pair):
+                continue
+            # started from the two single fits (a hysteresis' yield travel then needs no
+            # screening)
+            start = dict(linear)
+            for e in pair:
+                start.update({k: v for k, v in singles[e].values.items()
+                              if k.startswith(e + ".")})
+            candidates.append(_candidate(pair, fit, val, start, fit_mass))
+    return _select_whitened(baseline, candidates, fit)
+
+
+def _inertia_in(chosen: CandidateFit, fit: RigData, val: RigData) -> bool:
+    """Does the chosen model, refitted with the moving mass free, show inertia (mass at
+    least 3 standard deviations above zero, its force at least :data:`MIN_INERTIA_SHARE`
+    of the force's spread)?"""
+    linear = dict(chosen.values)
+    linear["f0"], linear["m"] = chosen.values["preload_n"], chosen.values["moving_mass_kg"]
+    c = _candidate(chosen.effects, fit, val, linear, True)
+    m, sd = c.values["moving_mass_kg"], c.std.get("moving_mass_kg", np.inf)
+    share = m * float(np.std(fit.acceleration)) / max(float(np.std(fit.force)), 1e-300)
+    return bool(m > 3.0 * sd and share >= MIN_INERTIA_SHARE)
 
 
 #: Order of the autoregressive whitening filter of the held-out comparison.

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from fielddiag.sim.dynamics import suspension_force_n
+from fielddiag.sim.dynamics import suspension_force_n, suspension_model
 from fielddiag.sim.effects import Effect
 from fielddiag.sim.vehicle import QuarterCarParams
 
@@ -83,7 +83,13 @@ def simulate_rig(
     params = QuarterCarParams(
         suspension_stiffness_n_per_m=stiffness_n_per_m, suspension_damping_ns_per_m=damping_ns_per_m
     )
-    true_force = moving_mass_kg * a + preload_n - suspension_force_n(x, v, params, effects)
+    model, theta = suspension_model(params, effects)
+    if model.n_states:
+        # hysteresis: its states integrated along the rod's motion, from rest at the start
+        f_s = model.force_along_path(x, v, 0.0, theta, sample_rate_hz, state_jacobian=False)[0]
+    else:
+        f_s = suspension_force_n(x, v, params, effects)
+    true_force = moving_mass_kg * a + preload_n - f_s
     rng = np.random.default_rng(seed + 1)
     n = x.size
     recipe = {

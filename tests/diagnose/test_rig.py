@@ -190,7 +190,8 @@ def test_real_mr_damper_friction_first_and_validated_on_another_record(name, oth
     data, val = _mr(name), _mr(other)
     diag = diagnose_rig(data)
     out = diag.to_dict()
-    assert out["findings"][0]["effect"] == "coulomb_friction"
+    # friction first: since issue 17 in its hysteretic (Dahl) form, the pre-yield modelled
+    assert out["findings"][0]["effect"] in ("coulomb_friction", "dahl_friction")
     assert out["band"]["inertia_kept"] is False  # 0.5-2 Hz strokes: no inertia to see
     fric = _other_record_nrmse(diag.selection.chosen, val)
     lin = _other_record_nrmse(diag.selection.baseline, val)
