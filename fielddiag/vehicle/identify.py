@@ -1,0 +1,454 @@
+"""Identify the full vehicle from a drive before and a drive after adding a known mass.
+
+:func:`identify_vehicle` -> :class:`VehicleIdentification`. Method (seed 003, adapted to
+output-only accelerometer data):
+
+1. Each drive's eight accelerometers (gravity and offsets removed) are band-pass filtered
+   without phase shift (Butterworth, ``scipy.signal.sosfiltfilt``) and integrated twice
+   (trapezoid), the band-pass applied after each integration and the same number of
+   times to every quantity, so that accelerations, velocities and displacements are the
+   same linear filter of the true motion and the equations of motion hold between them
+   exactly. The car's longitudinal and lateral accelerations get the same filter. The
+   ends (filter transients) are dropped and the signals decimated to the analysis rate.
+2. The four body sensors give heave, pitch and roll at the origin (least squares), hence
+   the body motion above each hub and the suspension extension and its rate.
+3. The body equations (:mod:`fielddiag.vehicle.regression`), linear in mass, first
+   moments, inertias, corner stiffness and damping, anti-roll stiffness and the roll and
+   pitch moment arms, are stacked over both drives; the known added mass at its known
+   position is the only non-zero right-hand side and fixes the scale. Weighted least
+   squares with a time-block sandwich covariance gives every parameter a standard
+   deviation, relative standard deviations and correlations.
+4. Derived quantities (centre of gravity, inertias about it) get their standard
+   deviations by the delta method.
+5. Each ``validate`` drive (same car, another manoeuvre) is predicted: the body
+   accelerations the model gives from the measured suspension motion, against the
+   measured ones (NRMSE = RMS error / RMS of the measured, band-passed).
+
+The JSON (:meth:`VehicleIdentification.to_dict`) has exactly the issue's contract keys.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy import integrate, signal
+
+from fielddiag.channels import CORNERS
+from fielddiag.errors import FieldDiagError, InsufficientDataError, InvalidValueError
+from fielddiag.vehicle.recording import VehicleRecording
+from fielddiag.vehicle.regression import (
+    N_PARAMS,
+    PARAM_NAMES,
+    DriveRegressors,
+    WlsResult,
+    predict_body_accel,
+    regressors,
+    weighted_least_squares,
+)
+
+__all__ = ["VehicleIdentifyConfig", "VehicleIdentification", "identify_vehicle",
+           "prepare_drive"]
+
+
+@dataclass(frozen=True)
+class VehicleIdentifyConfig:
+    """Settings of the full-vehicle identification.
+
+    Parameters
+    ----------
+    band_hz : (float, float)
+        Zero-phase band-pass [Hz] (body modes ~1-2 Hz, wheel hop ~10-15 Hz).
+    filter_order : int
+        Butterworth order of each band-pass.
+    analysis_rate_hz : float
+        Rate after decimation [Hz] (at least 3 x the upper band edge).
+    trim_s : float
+        Dropped at each end of a drive after filtering [s]: the band-pass transients of
+        the integrated signals last about 4 / low band edge (measured: with 0.4 Hz and 3 s
+        the estimates collapse, with 15 s they are right).
+    block_s : float
+        Time block of the sandwich covariance [s].
+    min_duration_s : float
+        Shortest drive accepted [s].
+    noise_compensation : bool
+        Remove the bias the accelerometer noise puts on least squares (errors in
+        variables): the noise of the body sensors is measured from their redundancy
+        (:func:`body_noise_std_mps2`; the hub sensors are taken as equally noisy), pure
+        noise of that level is run through the same processing, and its share of the
+        normal equations is subtracted.
+    """
+
+    band_hz: tuple[float, float] = (0.5, 25.0)
+    filter_order: int = 4
+    analysis_rate_hz: float = 100.0
+    trim_s: float = 9.0
+    block_s: float = 2.0
+    min_duration_s: float = 40.0
+    noise_compensation: bool = True
+
+
+def _bp(x: np.ndarray, sos: np.ndarray, times: int = 1) -> np.ndarray:
+    for _ in range(times):
+        x = signal.sosfiltfilt(sos, x, axis=-1)
+    return x
+
+
+def prepare_drive(rec: VehicleRecording, cfg: VehicleIdentifyConfig = VehicleIdentifyConfig()
+                  ) -> DriveRegressors:
+    """Band-passed, integrated, decimated body and suspension motion of one drive.
+
+    Parameters
+    ----------
+    rec : VehicleRecording
+    cfg : VehicleIdentifyConfig
+
+    Returns
+    -------
+    DriveRegressors
+
+    Raises
+    ------
+    InsufficientDataError
+        The drive is shorter than ``cfg.min_duration_s``.
+    InvalidValueError
+        The band does not fit under the drive's Nyquist frequency.
+    """
+    fs = float(rec.sample_rate_hz)
+    lo, hi = cfg.band_hz
+    if not 0 < lo < hi < 0.45 * fs:
+        raise InvalidValueError(f"band {lo:g}-{hi:g} Hz does not fit a {fs:g} Hz recording; "
+                                f"give 0 < low < high < {0.45 * fs:g} Hz")
+    if rec.duration_s < cfg.min_duration_s:
+        raise InsufficientDataError(
+            f"{rec.name or rec.label or 'a drive'} lasts {rec.duration_s:.1f} s; the full "
+            f"vehicle needs at least {cfg.min_duration_s:g} s of driving on a rough road "
+            "(record longer)")
+    sos = signal.butter(cfg.filter_order, [lo, hi], "bandpass", fs=fs, output="sos")
+    acc = np.vstack([rec.wheel_accel_mps2, rec.body_accel_mps2]).astype(float)
+    acc = acc - acc.mean(axis=1, keepdims=True)
+    dt = 1.0 / fs
+    a1 = _bp(acc, sos)
+    v1 = _bp(integrate.cumulative_trapezoid(a1, dx=dt, axis=1, initial=0.0), sos)
+    x1 = _bp(integrate.cumulative_trapezoid(v1, dx=dt, axis=1, initial=0.0), sos)
+    a3, v3 = _bp(a1, sos, 2), _bp(v1, sos)
+    car = np.vstack([rec.signal_or_zero("accel_long"), rec.signal_or_zero("accel_lat")])
+    car = _bp(car - car.mean(axis=1, keepdims=True), sos, 3)
+    step = max(1, int(fs // cfg.analysis_rate_hz))
+    trim = int(round(cfg.trim_s * fs))
+    keep = slice(trim, acc.shape[1] - trim, step)
+    a3, v3, x1, car = a3[:, keep], v3[:, keep], x1[:, keep], car[:, keep]
+    g = rec.geometry
+    pinv = np.linalg.pinv(g.sensor_matrix())
+    cm = g.corner_matrix()
+    qdd = pinv @ a3[4:]
+    zb_v, zb_x = cm @ (pinv @ v3[4:]), cm @ (pinv @ x1[4:])
+    at = rec.added_mass_at_m if rec.added_mass_at_m is not None else (0.0, 0.0)
+    return DriveRegressors(
+        qdd=qdd, r=zb_x - x1[:4], rd=zb_v - v3[:4], a_long=car[0], a_lat=car[1],
+        body_accel=a3[4:], corner_x=g.corner_x_m, corner_y=g.corner_y_m,
+        sensor_matrix=g.sensor_matrix(), added_mass_kg=float(rec.added_mass_kg),
+        added_mass_at_m=(float(at[0]), float(at[1])), rate_hz=fs / step)
+
+
+# --------------------------------------------------------------------------- results
+@dataclass
+class Estimate:
+    """A value with its standard deviation (SI)."""
+
+    value: float
+    std: float
+
+    def to_dict(self) -> dict[str, float]:
+        """``{"value", "std"}``."""
+        return {"value": float(self.value), "std": float(self.std)}
+
+    @property
+    def relative_std(self) -> float:
+        """std / |value| (inf for a zero value)."""
+        return abs(self.std / self.value) if self.value else math.inf
+
+
+@dataclass
+class VehicleIdentification:
+    """The identified full vehicle.
+
+    Attributes
+    ----------
+    sprung_mass_kg, cog_behind_front_axle_m, cog_left_of_centre_m, pitch_inertia_kgm2,
+    roll_inertia_kgm2, anti_roll_stiffness_front_n_per_m, anti_roll_stiffness_rear_n_per_m
+        :class:`Estimate` each (inertias about axes through the centre of gravity).
+    corners : dict corner -> {"stiffness_n_per_m": Estimate, "damping_ns_per_m": Estimate}
+    cross_validation : list of {"session", "nrmse"}
+        One entry per validate drive (empty without).
+    wls : WlsResult
+        The raw estimate of the linear-in-parameters model (:data:`PARAM_NAMES`).
+    fit_nrmse : dict label -> float
+        NRMSE of the predicted body accelerations on the identification drives.
+    method : str
+        How it was obtained.
+    """
+
+    sprung_mass_kg: Estimate
+    cog_behind_front_axle_m: Estimate
+    cog_left_of_centre_m: Estimate
+    pitch_inertia_kgm2: Estimate
+    roll_inertia_kgm2: Estimate
+    corners: dict[str, dict[str, Estimate]]
+    anti_roll_stiffness_front_n_per_m: Estimate
+    anti_roll_stiffness_rear_n_per_m: Estimate
+    wls: WlsResult
+    cross_validation: list[dict[str, Any]] = field(default_factory=list)
+    fit_nrmse: dict[str, float] = field(default_factory=dict)
+    method: str = ""
+
+    def to_dict(self) -> dict[str, Any]:
+        """The contract's JSON: each quantity ``{"value", "std"}`` in SI units."""
+        out: dict[str, Any] = {
+            "sprung_mass_kg": self.sprung_mass_kg.to_dict(),
+            "cog_behind_front_axle_m": self.cog_behind_front_axle_m.to_dict(),
+            "cog_left_of_centre_m": self.cog_left_of_centre_m.to_dict(),
+            "pitch_inertia_kgm2": self.pitch_inertia_kgm2.to_dict(),
+            "roll_inertia_kgm2": self.roll_inertia_kgm2.to_dict(),
+            "corners": {c: {k: v.to_dict() for k, v in self.corners[c].items()}
+                        for c in CORNERS},
+            "anti_roll_stiffness_front_n_per_m": self.anti_roll_stiffness_front_n_per_m.to_dict(),
+            "anti_roll_stiffness_rear_n_per_m": self.anti_roll_stiffness_rear_n_per_m.to_dict(),
+        }
+        if self.cross_validation:
+            out["cross_validation"] = [dict(c) for c in self.cross_validation]
+        return out
+
+    def to_json(self) -> str:
+        """:meth:`to_dict` as indented JSON."""
+        return json.dumps(self.to_dict(), indent=2)
+
+    def flat(self) -> dict[str, Estimate]:
+        """Every reported quantity by a flat name (``corner_fl_stiffness_n_per_m``...)."""
+        out = {k: getattr(self, k) for k in (
+            "sprung_mass_kg", "cog_behind_front_axle_m", "cog_left_of_centre_m",
+            "pitch_inertia_kgm2", "roll_inertia_kgm2", "anti_roll_stiffness_front_n_per_m",
+            "anti_roll_stiffness_rear_n_per_m")}
+        for c in CORNERS:
+            for k, v in self.corners[c].items():
+                out[f"corner_{c}_{k}"] = v
+        return out
+
+    def correlations(self, threshold: float = 0.9) -> list[tuple[str, str, float]]:
+        """Pairs of model parameters correlated beyond ``threshold`` (|rho|)."""
+        rho = self.wls.correlation()
+        out = []
+        for i in range(N_PARAMS):
+            for j in range(i + 1, N_PARAMS):
+                if np.isfinite(rho[i, j]) and abs(rho[i, j]) >= threshold:
+                    out.append((PARAM_NAMES[i], PARAM_NAMES[j], float(rho[i, j])))
+        return out
+
+    def summary(self) -> str:
+        """A table for people: value, std and relative std of every quantity."""
+        lines = ["full vehicle (identified, +- 1 std):"]
+        for name, e in self.flat().items():
+            rel = f"{100 * e.relative_std:5.1f} %" if math.isfinite(e.relative_std) else "   -"
+            lines.append(f"  {name:36s} {e.value:12.4g} +- {e.std:10.3g}  ({rel})")
+        for label, v in self.fit_nrmse.items():
+            lines.append(f"  fit NRMSE of body accelerations, {label}: {v:.3f}")
+        for cv in self.cross_validation:
+            lines.append(f"  cross-validation {cv['session']}: NRMSE {cv['nrmse']:.3f}")
+        strong = self.correlations()
+        if strong:
+            lines.append("  strongly correlated: " + ", ".join(
+                f"{a}/{b} {r:+.2f}" for a, b, r in strong[:6]))
+        return "\n".join(lines)
+
+
+def _derived(w: WlsResult) -> dict[str, Estimate]:
+    """Physical quantities from the model parameters, with delta-method stds."""
+    th = np.nan_to_num(w.theta)
+    cov = w.cov
+    m, sx, sy, jp, jr = th[:5]
+
+    def est(value: float, grad: np.ndarray) -> Estimate:
+        return Estimate(float(value), float(math.sqrt(max(grad @ cov @ grad, 0.0))))
+
+    def unit(i: int) -> np.ndarray:
+        g = np.zeros(N_PARAMS)
+        g[i] = 1.0
+        return g
+
+    out = {"sprung_mass_kg": est(m, unit(0))}
+    g = np.zeros(N_PARAMS)
+    g[0], g[1] = -sx / m**2, 1 / m
+    out["cog_behind_front_axle_m"] = est(sx / m, g)
+    g = np.zeros(N_PARAMS)
+    g[0], g[2] = -sy / m**2, 1 / m
+    out["cog_left_of_centre_m"] = est(sy / m, g)
+    g = np.zeros(N_PARAMS)
+    g[0], g[1], g[3] = sx**2 / m**2, -2 * sx / m, 1.0
+    out["pitch_inertia_kgm2"] = est(jp - sx**2 / m, g)
+    g = np.zeros(N_PARAMS)
+    g[0], g[2], g[4] = sy**2 / m**2, -2 * sy / m, 1.0
+    out["roll_inertia_kgm2"] = est(jr - sy**2 / m, g)
+    for i, c in enumerate(CORNERS):
+        out[f"k_{c}"] = est(th[6 + i], unit(6 + i))
+        out[f"c_{c}"] = est(th[10 + i], unit(10 + i))
+    out["arb_f"] = est(th[14], unit(14))
+    out["arb_r"] = est(th[15], unit(15))
+    return out
+
+
+def body_noise_std_mps2(rec: VehicleRecording) -> float:
+    """Noise of the body accelerometers from the redundancy of four sensors on a rigid body.
+
+    The part of the four readings no heave/pitch/roll explains, ``(I - G G^+) y``, holds
+    only noise (plus body flexing and sensor-position errors, so the estimate errs on the
+    high side); its summed variance is ``sigma^2 trace(I - G G^+) = sigma^2``. Offsets and
+    drift are removed by a 0.5 Hz zero-phase high-pass first.
+
+    Returns
+    -------
+    float
+        Standard deviation of one body accelerometer's noise [m/s^2].
+    """
+    g = rec.geometry.sensor_matrix()
+    proj = np.eye(4) - g @ np.linalg.pinv(g)
+    sos = signal.butter(2, 0.5, "highpass", fs=rec.sample_rate_hz, output="sos")
+    y = signal.sosfiltfilt(sos, rec.body_accel_mps2 - rec.body_accel_mps2.mean(axis=1,
+                                                                               keepdims=True))
+    res = proj @ y
+    n0 = min(res.shape[1] // 10, int(5 * rec.sample_rate_hz))
+    res = res[:, n0: res.shape[1] - n0] if n0 else res
+    return float(np.sqrt(np.sum(np.mean(res**2, axis=1)) / np.trace(proj)))
+
+
+def _noise_drive(rec: VehicleRecording, sigma: float, seed: int) -> VehicleRecording:
+    """A drive of pure white sensor noise (all eight accelerometers at ``sigma``)."""
+    rng = np.random.default_rng(seed)
+    return VehicleRecording(
+        wheel_accel_mps2=rng.normal(0.0, sigma, (4, rec.n)),
+        body_accel_mps2=rng.normal(0.0, sigma, (4, rec.n)),
+        sample_rate_hz=rec.sample_rate_hz, geometry=rec.geometry,
+        added_mass_kg=rec.added_mass_kg, added_mass_at_m=rec.added_mass_at_m,
+        label=rec.label, name=rec.name)
+
+
+def _nrmse(pred: np.ndarray, meas: np.ndarray) -> float:
+    return float(np.sqrt(np.mean((pred - meas) ** 2)) / np.sqrt(np.mean(meas**2)))
+
+
+def identify_vehicle(
+    before: VehicleRecording,
+    after: VehicleRecording,
+    added_mass_kg: float | None = None,
+    added_mass_at_m: tuple[float, float] | None = None,
+    validate: Sequence[VehicleRecording] = (),
+    config: VehicleIdentifyConfig = VehicleIdentifyConfig(),
+) -> VehicleIdentification:
+    """Identify the body and the four corners from two full-vehicle drives.
+
+    Parameters
+    ----------
+    before, after : VehicleRecording (or VehicleDrive)
+        The car as it is, and with a known mass added on the body.
+    added_mass_kg : float or None
+        The added mass [kg]; default: ``after.added_mass_kg - before.added_mass_kg``.
+    added_mass_at_m : (x_m, y_m) or None
+        Where it sits [m]; default: from ``after.added_mass_at_m``.
+    validate : sequence of VehicleRecording
+        Drives of the same car (any manoeuvre, their own added mass as recorded) to
+        cross-validate on.
+    config : VehicleIdentifyConfig
+
+    Returns
+    -------
+    VehicleIdentification
+
+    Raises
+    ------
+    InvalidValueError
+        No positive added mass, or no position for it.
+    FieldDiagError
+        The drives are of cars with different geometry.
+    InsufficientDataError
+        A drive too short, or no excitation of the parameters.
+    """
+    if added_mass_kg is None:
+        added_mass_kg = float(after.added_mass_kg) - float(before.added_mass_kg)
+    if not (math.isfinite(added_mass_kg) and added_mass_kg > 0):
+        raise InvalidValueError(
+            f"added mass {added_mass_kg!r} kg: the second drive needs a known mass added on the "
+            "body; give --added-mass KG (> 0)")
+    at = added_mass_at_m if added_mass_at_m is not None else after.added_mass_at_m
+    if at is None or len(at) != 2 or not all(math.isfinite(float(v)) for v in at):
+        raise InvalidValueError("where the added mass sits is unknown; give --added-mass-at "
+                                "X_M,Y_M (metres behind the front axle, metres left of centre)")
+    at = (float(at[0]), float(at[1]))
+    for other in (after, *validate):
+        if other.geometry != before.geometry:
+            raise FieldDiagError(
+                f"{other.name or other.label or 'a drive'} has another vehicle geometry than "
+                f"{before.name or 'the before drive'}; all drives must be of the same car "
+                "(import them with the same --vehicle file)")
+    d0 = prepare_drive(before, config)
+    d0.added_mass_kg, d0.added_mass_at_m = 0.0, (0.0, 0.0)
+    d1 = prepare_drive(after, config)
+    d1.added_mass_kg, d1.added_mass_at_m = added_mass_kg, at
+    drives = [d0, d1]
+    a, b, group, tidx = regressors(drives)
+    fitted = np.ones(N_PARAMS, bool)
+    # moment arms: only where the car accelerated (else the column is noise or zero)
+    for col, sig in ((16, "a_long"), (17, "a_lat")):
+        rms = max(float(np.sqrt(np.mean(getattr(d, sig) ** 2))) for d in drives)
+        fitted[col] = rms > 0.02
+    col_norm = np.linalg.norm(a, axis=0)
+    if np.any(col_norm[fitted] == 0):
+        raise InsufficientDataError("the drives do not move the body or the suspensions; drive "
+                                    "over a rough road")
+    noise = None
+    sigmas = {}
+    if config.noise_compensation:
+        nd = []
+        for k, (rec, d) in enumerate(((before, d0), (after, d1))):
+            sigmas[rec.label or ("before", "after")[k]] = s = body_noise_std_mps2(rec)
+            dn = prepare_drive(_noise_drive(rec, s, 12345 + k), config)
+            dn.added_mass_kg, dn.added_mass_at_m = d.added_mass_kg, d.added_mass_at_m
+            nd.append(dn)
+        an, bn, _, _ = regressors(nd)
+        noise = (an, bn)
+    block = max(1, int(round(config.block_s * d0.rate_hz)))
+    w = weighted_least_squares(a, b, group, tidx, fitted, block, noise)
+    est = _derived(w)
+    fit = {"before": _nrmse(predict_body_accel(w.theta, d0), d0.body_accel),
+           "after": _nrmse(predict_body_accel(w.theta, d1), d1.body_accel)}
+    cv = []
+    for k, rec in enumerate(validate):
+        dv = prepare_drive(rec, config)
+        if rec.added_mass_kg and rec.added_mass_at_m is None:
+            raise InvalidValueError(f"{rec.name or 'a validate drive'} carries an added mass "
+                                    "but not where it sits; record added_mass_at_m")
+        cv.append({"session": rec.name or rec.label or f"validate_{k + 1}",
+                   "nrmse": _nrmse(predict_body_accel(w.theta, dv), dv.body_accel)})
+    lo, hi = config.band_hz
+    method = (
+        f"output-only full-vehicle identification: 8 accelerometers band-passed {lo:g}-{hi:g} "
+        f"Hz (zero-phase Butterworth order {config.filter_order}, sosfiltfilt), integrated "
+        "twice (trapezoid, band-pass after each), heave/pitch/roll from the 4 body sensors "
+        "(least squares), 3 body equations linear in 18 parameters stacked over the drive "
+        f"before and after adding {added_mass_kg:g} kg at ({at[0]:g}, {at[1]:g}) m, "
+        f"weighted least squares (per-equation weights), {w.n_blocks} time blocks of "
+        f"{config.block_s:g} s for the sandwich covariance, delta method for derived "
+        "quantities; cross-validation = NRMSE of the predicted body accelerations")
+    return VehicleIdentification(
+        sprung_mass_kg=est["sprung_mass_kg"],
+        cog_behind_front_axle_m=est["cog_behind_front_axle_m"],
+        cog_left_of_centre_m=est["cog_left_of_centre_m"],
+        pitch_inertia_kgm2=est["pitch_inertia_kgm2"],
+        roll_inertia_kgm2=est["roll_inertia_kgm2"],
+        corners={c: {"stiffness_n_per_m": est[f"k_{c}"], "damping_ns_per_m": est[f"c_{c}"]}
+                 for c in CORNERS},
+        anti_roll_stiffness_front_n_per_m=est["arb_f"],
+        anti_roll_stiffness_rear_n_per_m=est["arb_r"],
+        wls=w, cross_validation=cv, fit_nrmse=fit, method=method)
