@@ -67,10 +67,11 @@ class VehicleIdentifyConfig:
         Butterworth order of each band-pass.
     analysis_rate_hz : float
         Rate after decimation [Hz] (at least 3 x the upper band edge).
-    trim_s : float
-        Dropped at each end of a drive after filtering [s]: the band-pass transients of
-        the integrated signals last about 4 / low band edge (measured: with 0.4 Hz and 3 s
-        the estimates collapse, with 15 s they are right).
+    trim_s : float or None
+        Dropped at each end of a drive after filtering [s]; None: 4.5 / low band edge (9 s
+        at 0.5 Hz). The band-pass transients of the integrated signals last about that
+        long (measured: with 0.4 Hz and 3 s the estimates collapse, with 15 s they are
+        right).
     block_s : float
         Time block of the sandwich covariance [s].
     min_duration_s : float
@@ -86,7 +87,7 @@ class VehicleIdentifyConfig:
     band_hz: tuple[float, float] = (0.5, 25.0)
     filter_order: int = 4
     analysis_rate_hz: float = 100.0
-    trim_s: float = 9.0
+    trim_s: float | None = None
     block_s: float = 2.0
     min_duration_s: float = 40.0
     noise_compensation: bool = True
@@ -139,7 +140,7 @@ def prepare_drive(rec: VehicleRecording, cfg: VehicleIdentifyConfig = VehicleIde
     car = np.vstack([rec.signal_or_zero("accel_long"), rec.signal_or_zero("accel_lat")])
     car = _bp(car - car.mean(axis=1, keepdims=True), sos, 3)
     step = max(1, int(fs // cfg.analysis_rate_hz))
-    trim = int(round(cfg.trim_s * fs))
+    trim = int(round((4.5 / lo if cfg.trim_s is None else cfg.trim_s) * fs))
     keep = slice(trim, acc.shape[1] - trim, step)
     a3, v3, x1, car = a3[:, keep], v3[:, keep], x1[:, keep], car[:, keep]
     g = rec.geometry
