@@ -36,7 +36,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy import integrate, signal
+from scipy import fft as sp_fft
+from scipy import signal
 
 from fielddiag.channels import CORNERS
 from fielddiag.errors import FieldDiagError, InsufficientDataError, InvalidValueError
@@ -74,6 +75,8 @@ class VehicleIdentifyConfig:
         right).
     block_s : float
         Time block of the sandwich covariance [s].
+    passes : int
+        Times the zero-phase band-pass is applied (each pass squares the attenuation).
     min_duration_s : float
         Shortest drive accepted [s].
     noise_compensation : bool
@@ -89,6 +92,7 @@ class VehicleIdentifyConfig:
     analysis_rate_hz: float = 100.0
     trim_s: float | None = None
     block_s: float = 2.0
+    passes: int = 1
     min_duration_s: float = 40.0
     noise_compensation: bool = True
 
@@ -97,6 +101,42 @@ def _bp(x: np.ndarray, sos: np.ndarray, times: int = 1) -> np.ndarray:
     for _ in range(times):
         x = signal.sosfiltfilt(sos, x, axis=-1)
     return x
+
+
+def integrate_twice(acc: np.ndarray, sample_rate_hz: float, low_hz: float
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Acceleration, velocity and displacement by exact integration in the frequency domain.
+
+    The mean is removed and a zero-phase raised-cosine high-pass (0 below ``low_hz / 2``,
+    1 above ``low_hz``) applied to all three alike, so they are the same linear filter of
+    the true motion (``v = a / (j w)``, ``x = a / (j w)^2`` at every frequency line). The
+    trapezoid rule would not be: its gain ``(w dt / 2) cot(w dt / 2)`` falls short of
+    ``1 / (j w)`` by 1-3 % at the wheel hop at 200 Hz sampling, which biased every
+    parameter by 5-9 % at that rate (measured).
+
+    Parameters
+    ----------
+    acc : ndarray (channels, n)
+        Accelerations [m/s^2] (gravity and offsets are removed with the mean).
+    sample_rate_hz : float
+    low_hz : float
+        Edge of the high-pass [Hz].
+
+    Returns
+    -------
+    a, v, x : ndarray (channels, n)
+        [m/s^2], [m/s], [m].
+    """
+    n = acc.shape[-1]
+    spec = sp_fft.rfft(acc - acc.mean(axis=-1, keepdims=True), n, axis=-1)
+    f = sp_fft.rfftfreq(n, 1.0 / sample_rate_hz)
+    u = np.clip((f - 0.5 * low_hz) / (0.5 * low_hz), 0.0, 1.0)
+    spec = spec * (0.5 - 0.5 * np.cos(np.pi * u))
+    jw = 2j * np.pi * f
+    jw[0] = 1.0
+    vel = spec / jw
+    return (sp_fft.irfft(spec, n, axis=-1), sp_fft.irfft(vel, n, axis=-1),
+            sp_fft.irfft(vel / jw, n, axis=-1))
 
 
 def prepare_drive(rec: VehicleRecording, cfg: VehicleIdentifyConfig = VehicleIdentifyConfig()
@@ -131,14 +171,10 @@ def prepare_drive(rec: VehicleRecording, cfg: VehicleIdentifyConfig = VehicleIde
             "(record longer)")
     sos = signal.butter(cfg.filter_order, [lo, hi], "bandpass", fs=fs, output="sos")
     acc = np.vstack([rec.wheel_accel_mps2, rec.body_accel_mps2]).astype(float)
-    acc = acc - acc.mean(axis=1, keepdims=True)
-    dt = 1.0 / fs
-    a1 = _bp(acc, sos)
-    v1 = _bp(integrate.cumulative_trapezoid(a1, dx=dt, axis=1, initial=0.0), sos)
-    x1 = _bp(integrate.cumulative_trapezoid(v1, dx=dt, axis=1, initial=0.0), sos)
-    a3, v3 = _bp(a1, sos, 2), _bp(v1, sos)
     car = np.vstack([rec.signal_or_zero("accel_long"), rec.signal_or_zero("accel_lat")])
-    car = _bp(car - car.mean(axis=1, keepdims=True), sos, 3)
+    a0, v0, x0 = integrate_twice(acc, fs, 0.5 * lo)
+    c0 = integrate_twice(car, fs, 0.5 * lo)[0]
+    a3, v3, x1, car = (_bp(y, sos, cfg.passes) for y in (a0, v0, x0, c0))
     step = max(1, int(fs // cfg.analysis_rate_hz))
     trim = int(round((4.5 / lo if cfg.trim_s is None else cfg.trim_s) * fs))
     keep = slice(trim, acc.shape[1] - trim, step)
