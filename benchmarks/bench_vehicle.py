@@ -131,7 +131,8 @@ def main() -> None:
         c = cases[-1]
         worst = max(c["rows"].items(), key=lambda kv: abs(kv[1]["z"]))
         print(f"case {i:3d}: {c['rate_hz']:5.0f} Hz road {c['road']} noise {c['noise']:.3f} "
-              f"dM {c['added_mass_kg']:5.1f} kg  mass err {100 * c['rows']['sprung_mass_kg']['err']:+.2f} %"
+              f"dM {c['added_mass_kg']:5.1f} kg  mass err "
+              f"{100 * c['rows']['sprung_mass_kg']['err']:+.2f} %"
               f"  cv NRMSE {c['cv_nrmse']:.3f}  worst z {worst[0]} {worst[1]['z']:+.1f}  "
               f"identify {c['identify_s']:.1f} s", flush=True)
     print(f"\n{'quantity':36s} {'median|err|':>11s} {'p95|err|':>9s} {'in budget':>9s} "
@@ -155,10 +156,12 @@ def main() -> None:
     cv = np.array([c["cv_nrmse"] for c in cases])
     print(f"\ncross-validation NRMSE of the body accelerations: median {np.median(cv):.3f}, "
           f"max {cv.max():.3f}")
-    print(f"identify per case (in memory, incl. validate drive): median "
-          f"{np.median([c['identify_s'] for c in cases]):.1f} s; all cases {time.perf_counter() - t_all:.0f} s")
+    med = np.median([c["identify_s"] for c in cases])
+    print(f"identify per case (in memory, incl. validate drive): median {med:.1f} s; all "
+          f"cases {time.perf_counter() - t_all:.0f} s")
     t = timing()
-    print(f"identify of two 180 s drives at 500 Hz from session files: {', '.join(f'{x:.2f}' for x in t)} s "
+    times = ", ".join(f"{x:.2f}" for x in t)
+    print(f"identify of two 180 s drives at 500 Hz from session files: {times} s "
           f"(median {np.median(t):.2f} s)")
     if args.json:
         Path(args.json).write_text(json.dumps({"seed": args.seed, "n": args.n,
