@@ -20,9 +20,14 @@ output-only accelerometer data):
    deviation, relative standard deviations and correlations.
 4. Derived quantities (centre of gravity, inertias about it) get their standard
    deviations by the delta method.
-5. Each ``validate`` drive (same car, another manoeuvre) is predicted: the body
-   accelerations the model gives from the measured suspension motion, against the
-   measured ones (NRMSE = RMS error / RMS of the measured, band-passed).
+5. Output-error refinement (:mod:`fielddiag.vehicle.output_error`): the body simulated
+   from the measured hub motion, the parameters adjusted to its accelerations; tried when
+   validate drives are given and kept only if it predicts them better (by
+   ``refine_gain``).
+6. Each ``validate`` drive (same car, another manoeuvre) is predicted: the body
+   accelerations simulated from its measured hub motion and car accelerations, against
+   the measured ones (NRMSE = RMS error / RMS of the measured, band-passed, after the
+   first seconds of the simulation).
 
 The JSON (:meth:`VehicleIdentification.to_dict`) has exactly the issue's contract keys.
 """
@@ -41,13 +46,13 @@ from scipy import signal
 
 from fielddiag.channels import CORNERS
 from fielddiag.errors import FieldDiagError, InsufficientDataError, InvalidValueError
+from fielddiag.vehicle.output_error import SETTLE_S, refine_output_error, simulate_body_accel
 from fielddiag.vehicle.recording import VehicleRecording
 from fielddiag.vehicle.regression import (
     N_PARAMS,
     PARAM_NAMES,
     DriveRegressors,
     WlsResult,
-    predict_body_accel,
     regressors,
     weighted_least_squares,
 )
@@ -85,6 +90,13 @@ class VehicleIdentifyConfig:
         (:func:`body_noise_std_mps2`; the hub sensors are taken as equally noisy), pure
         noise of that level is run through the same processing, and its share of the
         normal equations is subtracted.
+    refine : bool
+        Try the output-error refinement (:mod:`fielddiag.vehicle.output_error`) when there
+        are validate drives, and keep it only if it predicts their body accelerations
+        better (on the identification drives it is better by construction, so they cannot
+        judge it).
+    refine_gain : float
+        Relative NRMSE improvement the refinement must bring to be kept.
     """
 
     band_hz: tuple[float, float] = (0.5, 25.0)
@@ -95,6 +107,8 @@ class VehicleIdentifyConfig:
     passes: int = 1
     min_duration_s: float = 40.0
     noise_compensation: bool = True
+    refine: bool = True
+    refine_gain: float = 0.02
 
 
 def _bp(x: np.ndarray, sos: np.ndarray, times: int = 1) -> np.ndarray:
@@ -189,7 +203,8 @@ def prepare_drive(rec: VehicleRecording, cfg: VehicleIdentifyConfig = VehicleIde
         qdd=qdd, r=zb_x - x1[:4], rd=zb_v - v3[:4], a_long=car[0], a_lat=car[1],
         body_accel=a3[4:], corner_x=g.corner_x_m, corner_y=g.corner_y_m,
         sensor_matrix=g.sensor_matrix(), added_mass_kg=float(rec.added_mass_kg),
-        added_mass_at_m=(float(at[0]), float(at[1])), rate_hz=fs / step)
+        added_mass_at_m=(float(at[0]), float(at[1])), rate_hz=fs / step,
+        wheel_disp=x1[:4], wheel_vel=v3[:4])
 
 
 # --------------------------------------------------------------------------- results
@@ -225,9 +240,12 @@ class VehicleIdentification:
     wls : WlsResult
         The raw estimate of the linear-in-parameters model (:data:`PARAM_NAMES`).
     fit_nrmse : dict label -> float
-        NRMSE of the predicted body accelerations on the identification drives.
+        NRMSE of the simulated body accelerations on the identification drives.
     method : str
         How it was obtained.
+    refinement : dict
+        The output-error refinement: ``applied``, ``judged_on`` and the NRMSE of the
+        least-squares and of the refined parameters it was judged by.
     """
 
     sprung_mass_kg: Estimate
@@ -242,6 +260,7 @@ class VehicleIdentification:
     cross_validation: list[dict[str, Any]] = field(default_factory=list)
     fit_nrmse: dict[str, float] = field(default_factory=dict)
     method: str = ""
+    refinement: dict[str, Any] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         """The contract's JSON: each quantity ``{"value", "std"}`` in SI units."""
@@ -376,6 +395,12 @@ def _nrmse(pred: np.ndarray, meas: np.ndarray) -> float:
     return float(np.sqrt(np.mean((pred - meas) ** 2)) / np.sqrt(np.mean(meas**2)))
 
 
+def sim_nrmse(theta: np.ndarray, d: DriveRegressors) -> float:
+    """NRMSE of the body accelerations simulated from the hub motion (after the start)."""
+    skip = int(round(SETTLE_S * d.rate_hz))
+    return _nrmse(simulate_body_accel(theta, d)[:, skip:], d.body_accel[:, skip:])
+
+
 def identify_vehicle(
     before: VehicleRecording,
     after: VehicleRecording,
@@ -457,27 +482,43 @@ def identify_vehicle(
         noise = (an, bn)
     block = max(1, int(round(config.block_s * d0.rate_hz)))
     w = weighted_least_squares(a, b, group, tidx, fitted, block, noise)
-    est = _derived(w)
-    fit = {"before": _nrmse(predict_body_accel(w.theta, d0), d0.body_accel),
-           "after": _nrmse(predict_body_accel(w.theta, d1), d1.body_accel)}
-    cv = []
+    dvs = []
     for k, rec in enumerate(validate):
-        dv = prepare_drive(rec, config)
         if rec.added_mass_kg and rec.added_mass_at_m is None:
             raise InvalidValueError(f"{rec.name or 'a validate drive'} carries an added mass "
                                     "but not where it sits; record added_mass_at_m")
-        cv.append({"session": rec.name or rec.label or f"validate_{k + 1}",
-                   "nrmse": _nrmse(predict_body_accel(w.theta, dv), dv.body_accel)})
+        dvs.append((rec.name or rec.label or f"validate_{k + 1}", prepare_drive(rec, config)))
+    refinement: dict[str, Any] = {"applied": False}
+    if config.refine and dvs:
+        oe = refine_output_error(w, drives, config.block_s)
+        ls_score = float(np.mean([sim_nrmse(w.theta, d) for _, d in dvs]))
+        oe_score = float(np.mean([sim_nrmse(oe.wls.theta, d) for _, d in dvs]))
+        better = oe.success and oe_score < (1.0 - config.refine_gain) * ls_score
+        refinement = {"applied": bool(better), "judged_on": "validate",
+                      "nrmse_least_squares": ls_score, "nrmse_output_error": oe_score,
+                      "nrmse_identification": [oe.nrmse_start, oe.nrmse]}
+        if better:
+            w = oe.wls
+    est = _derived(w)
+    fit = {"before": sim_nrmse(w.theta, d0), "after": sim_nrmse(w.theta, d1)}
+    cv = [{"session": name, "nrmse": sim_nrmse(w.theta, d)} for name, d in dvs]
     lo, hi = config.band_hz
+    refined = ""
+    if config.refine:
+        refined = "; output-error refinement " + (
+            ("applied" if refinement["applied"] else "tried, not better on the validate drives")
+            if dvs else "not tried (no validate drive to judge it on)")
     method = (
-        f"output-only full-vehicle identification: 8 accelerometers band-passed {lo:g}-{hi:g} "
-        f"Hz (zero-phase Butterworth order {config.filter_order}, sosfiltfilt), integrated "
-        "twice (trapezoid, band-pass after each), heave/pitch/roll from the 4 body sensors "
+        f"output-only full-vehicle identification: 8 accelerometers integrated twice in the "
+        f"frequency domain and band-passed {lo:g}-{hi:g} Hz (zero-phase Butterworth order "
+        f"{config.filter_order}, sosfiltfilt), heave/pitch/roll from the 4 body sensors "
         "(least squares), 3 body equations linear in 18 parameters stacked over the drive "
         f"before and after adding {added_mass_kg:g} kg at ({at[0]:g}, {at[1]:g}) m, "
-        f"weighted least squares (per-equation weights), {w.n_blocks} time blocks of "
-        f"{config.block_s:g} s for the sandwich covariance, delta method for derived "
-        "quantities; cross-validation = NRMSE of the predicted body accelerations")
+        "weighted least squares (per-equation weights, sensor-noise bias compensated), "
+        f"{w.n_blocks} time blocks of {config.block_s:g} s for the sandwich covariance, "
+        f"delta method for derived quantities{refined}; NRMSE = RMS error / RMS of the "
+        "body accelerations simulated from the hub motion, after the first "
+        f"{SETTLE_S:g} s")
     return VehicleIdentification(
         sprung_mass_kg=est["sprung_mass_kg"],
         cog_behind_front_axle_m=est["cog_behind_front_axle_m"],
@@ -488,4 +529,4 @@ def identify_vehicle(
                  for c in CORNERS},
         anti_roll_stiffness_front_n_per_m=est["arb_f"],
         anti_roll_stiffness_rear_n_per_m=est["arb_r"],
-        wls=w, cross_validation=cv, fit_nrmse=fit, method=method)
+        wls=w, cross_validation=cv, fit_nrmse=fit, method=method, refinement=refinement)

@@ -67,6 +67,8 @@ class DriveRegressors:
     added_mass_at_m : (float, float)
     rate_hz : float
         Analysis rate [Hz].
+    wheel_disp, wheel_vel : ndarray (4, n) or None
+        Hub displacement [m] and velocity [m/s] (band-passed; for simulating the body).
     """
 
     qdd: np.ndarray
@@ -81,6 +83,8 @@ class DriveRegressors:
     added_mass_kg: float
     added_mass_at_m: tuple[float, float]
     rate_hz: float
+    wheel_disp: np.ndarray | None = None
+    wheel_vel: np.ndarray | None = None
 
     @property
     def n(self) -> int:
