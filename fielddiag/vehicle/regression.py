@@ -21,8 +21,8 @@ Weighted least squares (Gautier, seed 003): an ordinary fit, then each equation 
 drive weighted by the inverse of its residual standard deviation and solved again. The
 covariance is a delete-a-block jackknife over time blocks (the band-passed residuals are
 correlated in time, so the textbook ``sigma^2 (W^T W)^-1`` would be too optimistic, and
-the noise compensation makes the estimator nonlinear in the data); the jackknife's bias
-estimate is removed from the estimate.
+the noise compensation makes the estimator nonlinear in the data); optionally the
+jackknife's bias estimate is removed from the estimate.
 """
 
 from __future__ import annotations
@@ -191,6 +191,8 @@ class WlsResult:
         Residual standard deviation of each equation group (unweighted units).
     n_blocks : int
         Time blocks of the jackknife.
+    scale_std : float
+        Relative systematic uncertainty of the common scale included in ``cov``.
     """
 
     theta: np.ndarray
@@ -198,6 +200,7 @@ class WlsResult:
     fitted: np.ndarray
     group_sigma: np.ndarray
     n_blocks: int
+    scale_std: float = 0.0
 
     @property
     def std(self) -> np.ndarray:
@@ -214,8 +217,8 @@ class WlsResult:
 
 def weighted_least_squares(a: np.ndarray, b: np.ndarray, group: np.ndarray, tidx: np.ndarray,
                            fitted: np.ndarray, block_samples: int,
-                           noise: dict[int, tuple[np.ndarray, np.ndarray]] | None = None
-                           ) -> WlsResult:
+                           noise: dict[int, tuple[np.ndarray, np.ndarray]] | None = None,
+                           bias_correction: bool = False) -> WlsResult:
     """Solve ``A theta = b`` by weighted least squares with a block-jackknife covariance.
 
     Parameters
@@ -232,6 +235,8 @@ def weighted_least_squares(a: np.ndarray, b: np.ndarray, group: np.ndarray, tidx
         ``E[A_n^T b_n]`` (N_PARAMS,) (:func:`noise_normal_equations`). The regressors are
         measured with noise (errors in variables), which biases least squares towards
         zero; these are subtracted (bias-compensated least squares).
+    bias_correction : bool
+        Subtract the jackknife's estimate of the estimator's bias.
 
     Returns
     -------
@@ -285,7 +290,8 @@ def weighted_least_squares(a: np.ndarray, b: np.ndarray, group: np.ndarray, tidx
     reps_a = np.array(reps)
     nb = ub.size
     mean_rep = reps_a.mean(axis=0)
-    th_s = th_s - (nb - 1) * (mean_rep - th_s)  # jackknife bias correction
+    if bias_correction:
+        th_s = th_s - (nb - 1) * (mean_rep - th_s)  # jackknife bias correction
     dev = reps_a - mean_rep
     cov_s = (nb - 1) / nb * dev.T @ dev
     theta = np.full(a.shape[1], np.nan)
