@@ -104,7 +104,8 @@ class VehicleIdentifyConfig:
         Try the output-error refinement (:mod:`fielddiag.vehicle.output_error`) when there
         are validate drives, and keep it only if it predicts their body accelerations
         better (on the identification drives it is better by construction, so they cannot
-        judge it).
+        judge it). Off by default: it costs 5-10 s on two 180 s drives, and on the
+        simulated linear cars it was never kept (``fielddiag identify --refine``).
     refine_gain : float
         Relative NRMSE improvement the refinement must bring to be kept.
     """
@@ -120,7 +121,7 @@ class VehicleIdentifyConfig:
     scale_floor: float = 0.001
     min_duration_s: float = 40.0
     noise_compensation: bool = True
-    refine: bool = True
+    refine: bool = False
     refine_gain: float = 0.10
 
 
