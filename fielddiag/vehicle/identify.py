@@ -96,7 +96,9 @@ class VehicleIdentifyConfig:
     noise_compensation : bool
         Remove the bias the accelerometer noise puts on least squares (errors in
         variables): the noise of the body sensors is measured from their redundancy
-        (:func:`body_noise_std_mps2`; the hub sensors are taken as equally noisy), its
+        (:func:`body_noise_std_mps2`; the hub sensors are taken as equally noisy), that of
+        the car's acceleration signals above a quarter of the rate
+        (:func:`car_accel_noise_std_mps2`), its
         expected share of the normal equations follows from the processing's transfer
         functions (:func:`filter_response`,
         :func:`~fielddiag.vehicle.regression.noise_normal_equations`) and is subtracted.
@@ -117,7 +119,7 @@ class VehicleIdentifyConfig:
     block_s: float = 5.0
     passes: int = 1
     jackknife_bias: bool = False
-    compensation_doubt: float = 0.25
+    compensation_doubt: float = 0.1
     scale_floor: float = 0.001
     min_duration_s: float = 40.0
     noise_compensation: bool = True
@@ -394,6 +396,30 @@ def body_noise_std_mps2(rec: VehicleRecording) -> float:
     return float(np.sqrt(np.sum(np.mean(res**2, axis=1)) / np.trace(proj)))
 
 
+def car_accel_noise_std_mps2(rec: VehicleRecording) -> tuple[float, float]:
+    """Noise of the car's longitudinal and lateral acceleration signals [m/s^2].
+
+    A car's own accelerations change slowly (well below a quarter of any DAQ rate), so
+    what these signals hold above ``fs / 4`` is taken as white noise: its std there,
+    times sqrt(2) for the half of the band below. 0 for a missing signal.
+
+    Returns
+    -------
+    (float, float)
+        Longitudinal, lateral.
+    """
+    fs = float(rec.sample_rate_hz)
+    sos = signal.butter(4, 0.25 * fs, "highpass", fs=fs, output="sos")
+    out = []
+    for v in (rec.accel_long_mps2, rec.accel_lat_mps2):
+        if v is None or len(v) < 100:
+            out.append(0.0)
+            continue
+        hp = signal.sosfiltfilt(sos, np.asarray(v, float) - float(np.mean(v)))
+        out.append(float(np.std(hp) * np.sqrt(2.0)))
+    return out[0], out[1]
+
+
 def filter_response(rec: VehicleRecording, cfg: VehicleIdentifyConfig) -> np.ndarray:
     """Lag-0 cross-correlations of the acceleration, velocity and displacement filters of
     :func:`prepare_drive` for unit white noise: ``R[f, g] = (1/n) sum_k H_f H_g*``.
@@ -503,14 +529,15 @@ def identify_vehicle(
         for k, (rec, d) in enumerate(((before, d0), (after, d1))):
             sigma = body_noise_std_mps2(rec)  # the hubs' sensors taken as equally noisy
             noise.update(noise_normal_equations(d, [sigma] * 8,
-                                                filter_response(rec, config), 3 * k))
+                                                filter_response(rec, config), 3 * k,
+                                                car_accel_noise_std_mps2(rec)))
     block = max(1, int(round(config.block_s * d0.rate_hz)))
     w = weighted_least_squares(a, b, group, tidx, fitted, block, noise, config.jackknife_bias)
     if noise:
         # the noise compensation is itself uncertain (it takes the hub sensors as noisy as
-        # the body's, and left 10-25 % of the bias in tests with known truth): carry a
-        # quarter of the scale change it made as a fully correlated scale uncertainty, plus
-        # a floor for the processing (bias without noise: 0.05-0.13 %, measured)
+        # the body's; in tests with known truth it removed 97-100 % of a 10 % bias): carry
+        # a tenth of the scale change it made as a fully correlated scale uncertainty, plus
+        # a floor for the processing (bias without noise: 0.04-0.13 %, measured)
         raw = weighted_least_squares(a, b, group, tidx, fitted, block, None)
         shift = w.theta[0] / raw.theta[0] - 1.0
         w.scale_std = float(np.hypot(config.compensation_doubt * shift, config.scale_floor))

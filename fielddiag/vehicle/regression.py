@@ -302,7 +302,8 @@ def weighted_least_squares(a: np.ndarray, b: np.ndarray, group: np.ndarray, tidx
 
 
 def noise_normal_equations(d: DriveRegressors, sigma_mps2: Sequence[float],
-                           response: np.ndarray, first_group: int
+                           response: np.ndarray, first_group: int,
+                           car_sigma_mps2: tuple[float, float] = (0.0, 0.0)
                            ) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     """Expected share of white accelerometer noise in one drive's normal equations.
 
@@ -322,6 +323,9 @@ def noise_normal_equations(d: DriveRegressors, sigma_mps2: Sequence[float],
         filters for unit white noise.
     first_group : int
         Group id of this drive's heave equation (``3 * drive``).
+    car_sigma_mps2 : (float, float)
+        Noise std of the car's longitudinal and lateral acceleration signals [m/s^2]
+        (they are regressors of the pitch and roll moment arms).
 
     Returns
     -------
@@ -347,4 +351,6 @@ def noise_normal_equations(d: DriveRegressors, sigma_mps2: Sequence[float],
     out = {}
     for e in range(3):
         out[first_group + e] = (d.n * a[e].T @ s @ a[e], d.n * a[e].T @ s @ b[e])
+    out[first_group + 1][0][16, 16] += d.n * car_sigma_mps2[0] ** 2 * response[0, 0]
+    out[first_group + 2][0][17, 17] += d.n * car_sigma_mps2[1] ** 2 * response[0, 0]
     return out
