@@ -93,6 +93,9 @@ class VehicleDiagnoseConfig:
         Also try each effect on both corners of an axle with shared parameters.
     max_effects : int
         Most effects in the chosen model (greedy forward selection).
+    exact_fits : int
+        Candidates of each round screened by a fast fixed-weight fit; this many of the
+        best that beat the current model are fitted again exactly for the choice.
     mismatch_tolerance : float
         Relative left/right difference tolerated without a finding (0.15: the ratio must
         leave 1/1.15..1.15; production spread of dampers and springs).
@@ -107,6 +110,7 @@ class VehicleDiagnoseConfig:
     effects: tuple[str, ...] = DEFAULT_EFFECTS
     axle_candidates: bool = True
     max_effects: int = 3
+    exact_fits: int = 4
     mismatch_tolerance: float = 0.15
     mismatch_z: float = 1.645
     window_s: float = 5.0
@@ -279,6 +283,7 @@ class _Fitted:
     cov: np.ndarray
     fitted: np.ndarray
     names: list[str]
+    group_sigma: np.ndarray | None = None
 
 
 def _fit(data: _Data, terms: Sequence[_Term], parts: Sequence[slice], fitted_base: np.ndarray,
@@ -298,7 +303,63 @@ def _fit(data: _Data, terms: Sequence[_Term], parts: Sequence[slice], fitted_bas
     w = weighted_least_squares(a, b, g, t, fitted, block, noise)
     names = list(PARAM_NAMES) + [f"{term.label}.{p}" for term in terms
                                  for p in term.linear_params()]
-    return _Fitted(tuple(terms), w.theta, w.cov, w.fitted, names)
+    return _Fitted(tuple(terms), w.theta, w.cov, w.fitted, names, w.group_sigma)
+
+
+def _names(terms: Sequence[_Term]) -> list[str]:
+    return list(PARAM_NAMES) + [f"{t.label}.{p}" for t in terms for p in t.linear_params()]
+
+
+class _Screen:
+    """Fast fixed-weight least squares for screening many candidates: the linear columns'
+    weighted normal equations (noise-compensated, the weights of the linear fit) are summed
+    once per equation group; a candidate adds only its own columns' products."""
+
+    def __init__(self, data: _Data, parts: Sequence[slice], fitted_base: np.ndarray,
+                 sigma: np.ndarray) -> None:
+        p = N_PARAMS
+        self.data, self.fitted_base = data, fitted_base
+        self.g, self.h = np.zeros((p, p)), np.zeros(p)
+        self.items = []
+        for k, (d, part) in enumerate(zip(data.drives, parts, strict=True)):
+            a, b = _equation_rows(d)
+            an, bn = _equation_rows(data.noise[k]) if data.noise is not None else (None, None)
+            for e in range(3):
+                w2 = 1.0 / sigma[3 * k + e] ** 2
+                ae, be = a[e, part], b[e, part]
+                self.g += w2 * ae.T @ ae
+                self.h += w2 * ae.T @ be
+                if an is not None:
+                    ane, bne = an[e, part], bn[e, part]
+                    self.g -= w2 * ane.T @ ane
+                    self.h -= w2 * ane.T @ bne
+                self.items.append((d, e, part, w2, ae, be))
+
+    def fit(self, terms: Sequence[_Term]) -> _Fitted:
+        p = N_PARAMS
+        q = sum(len(t.linear_params()) for t in terms)
+        g = np.zeros((p + q, p + q))
+        h = np.zeros(p + q)
+        g[:p, :p], h[:p] = self.g, self.h
+        for d, e, part, w2, ae, be in self.items:
+            ex = np.concatenate([t.columns(d)[e, part] for t in terms], axis=1)
+            g[:p, p:] += w2 * ae.T @ ex
+            g[p:, p:] += w2 * ex.T @ ex
+            h[p:] += w2 * ex.T @ be
+        g[p:, :p] = g[:p, p:].T
+        fitted = np.concatenate([self.fitted_base, np.ones(q, bool)])
+        for t in terms:
+            fitted[t.replaced_columns()] = False
+        cols = np.flatnonzero(fitted)
+        gs = g[np.ix_(cols, cols)]
+        sc = np.sqrt(np.abs(np.diag(gs)))
+        sc[sc == 0] = 1.0
+        inv = np.linalg.pinv(gs / np.outer(sc, sc))
+        theta = np.full(p + q, np.nan)
+        theta[cols] = inv @ (h[cols] / sc) / sc
+        cov = np.zeros((p + q, p + q))
+        cov[np.ix_(cols, cols)] = inv / np.outer(sc, sc)
+        return _Fitted(tuple(terms), theta, cov, fitted, _names(terms))
 
 
 def _predict(f: _Fitted, d: DriveRegressors) -> np.ndarray:
@@ -597,7 +658,6 @@ def diagnose_vehicle(
             raise FieldDiagError(
                 f"{other.name or other.label or 'a drive'} has another vehicle geometry than "
                 f"{before.name or 'the before drive'}; all drives must be of the same car")
-    icfg = config.identify
     _COLUMNS.clear()
     _ROWS.clear()
     _RAW.clear()
@@ -641,20 +701,22 @@ def _diagnose(before: VehicleRecording, after: VehicleRecording, added_mass_kg: 
     def fit(terms: Sequence[_Term], parts=fit_parts) -> _Fitted:
         return _fit(data, terms, parts, base_fitted, block)
 
-    def best_shape(prefix: tuple[_Term, ...], effect: str, corners: tuple[str, ...]
-                   ) -> CandidateFit:
+    def best_shape(screen: _Screen, prefix: tuple[_Term, ...], effect: str,
+                   corners: tuple[str, ...]) -> CandidateFit:
         r = np.concatenate([_RAW[id(d)][1].r[CORNERS.index(c)] for d in drives
                             for c in corners])
         best = None
         for shape in _shape_grid(effect, r):
-            f = fit((*prefix, _Term(effect, corners, shape)))
+            f = screen.fit((*prefix, _Term(effect, corners, shape)))
             cand = _candidate(f, data, fit_parts, hold_parts)
             if best is None or cand.nrmse_fit < best.nrmse_fit:
                 best = cand
         return best
 
     say("fitting the linear model")
-    base = _candidate(fit(()), data, fit_parts, hold_parts)
+    base_fit = fit(())
+    base = _candidate(base_fit, data, fit_parts, hold_parts)
+    screen = _Screen(data, fit_parts, base_fitted, base_fit.group_sigma)
     places = [(c,) for c in CORNERS]
     if config.axle_candidates:
         places += list(AXLES.values())
@@ -664,13 +726,20 @@ def _diagnose(before: VehicleRecording, after: VehicleRecording, added_mass_kg: 
     prefix: tuple[_Term, ...] = ()
     for _round in range(config.max_effects):
         used = {c for t in prefix for c in t.corners}
-        cands = []
+        screened = []
         for e in config.effects:
             for pl in places:
                 if used & set(pl):
                     continue
-                cands.append(best_shape(prefix, e, pl))
+                screened.append(best_shape(screen, prefix, e, pl))
+        # the most promising few fitted exactly (reweighted, sandwich covariance)
+        promising = sorted((c for c in screened
+                            if compare(chosen, c).beats(c.n_params - chosen.n_params)),
+                           key=lambda c: c.mse_validation)[:config.exact_fits]
+        cands = [_candidate(fit(c.extra["fitted"].terms), data, fit_parts, hold_parts)
+                 for c in promising]
         tried.extend(cands)
+        tried.extend(c for c in screened if c not in promising)
         if chosen is base:
             sel = select_model(base, cands)
             nxt = sel.chosen if sel.chosen is not base else None
