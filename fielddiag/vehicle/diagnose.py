@@ -50,6 +50,7 @@ from fielddiag.channels import CORNERS
 from fielddiag.diagnose.selection import CandidateFit, compare, confidence, select_model
 from fielddiag.effects import EFFECTS, ForceModel, get_effect
 from fielddiag.errors import FieldDiagError, InvalidValueError
+from fielddiag.sim._common import G_MPS2
 from fielddiag.vehicle.identify import (
     VehicleIdentifyConfig,
     _derived,
@@ -206,6 +207,21 @@ class _RawMotion:
         return x[..., self.keep]
 
 
+def _static_sag_m(theta: np.ndarray, d: DriveRegressors) -> np.ndarray:
+    """Static change of each corner's travel [m] from the added mass of drive ``d`` (tyres
+    taken as rigid), from the linear model's corner and anti-roll stiffness."""
+    if not d.added_mass_kg:
+        return np.zeros(4)
+    th = np.nan_to_num(theta)
+    lever = np.array([np.ones(4), d.corner_x, d.corner_y])  # (3, 4)
+    stiff = (lever * th[_K0:_K0 + 4]) @ lever.T
+    tf, tr = d.corner_y[0] - d.corner_y[1], d.corner_y[2] - d.corner_y[3]
+    stiff[2, 2] += th[14] * tf**2 + th[15] * tr**2
+    xa, ya = d.added_mass_at_m
+    load = -d.added_mass_kg * G_MPS2 * np.array([1.0, xa, ya])
+    return lever.T @ np.linalg.solve(stiff, load)
+
+
 def _raw_motion(rec: VehicleRecording, cfg: VehicleIdentifyConfig) -> _RawMotion:
     fs = float(rec.sample_rate_hz)
     lo, hi = cfg.band_hz
@@ -243,7 +259,7 @@ def _shape_grid(effect: str, r: np.ndarray) -> list[tuple[tuple[str, float], ...
     friction smoothing at its default and around it."""
     if effect == "bump_stop":
         comp = np.abs(np.minimum(r, 0.0))
-        qs = np.quantile(comp, [0.80, 0.90, 0.95, 0.98])
+        qs = np.quantile(comp, [0.6, 0.75, 0.85, 0.9, 0.94, 0.97, 0.985, 0.995])
         return [(("gap_m", float(q)),) for q in qs if q > 0]
     if effect == "coulomb_friction":
         return [(("smoothing_velocity_mps", v),) for v in (0.003, 0.01, 0.03)]
@@ -718,6 +734,11 @@ def _diagnose(before: VehicleRecording, after: VehicleRecording, added_mass_kg: 
     say("fitting the linear model")
     base_fit = fit(())
     base = _candidate(base_fit, data, fit_parts, hold_parts)
+    # effects act on the travel from the unloaded car's rest: the drive with the mass added
+    # rests lower by the static sag the linear model gives
+    for d in drives:
+        raw = _RAW[id(d)][1]
+        raw.r = raw.r + _static_sag_m(base_fit.theta, d)[:, None]
     screen = _Screen(data, fit_parts, base_fitted, base_fit.group_sigma)
     places = [(c,) for c in CORNERS]
     if config.axle_candidates:
