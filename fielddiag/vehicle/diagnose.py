@@ -460,6 +460,7 @@ class VehicleDiagnosis:
     warnings: list[dict[str, Any]] = field(default_factory=list)
     cross_validation: list[dict[str, Any]] = field(default_factory=list)
     fit: list[dict[str, Any]] = field(default_factory=list)
+    vehicle: dict[str, Any] = field(default_factory=dict)
 
     @property
     def verdict(self) -> str:
@@ -490,6 +491,7 @@ class VehicleDiagnosis:
             "fit": self.fit,
             "linear_model_adequate": ch is base,
             "method": self.method,
+            "vehicle": self.vehicle,
         }
 
 
@@ -833,7 +835,8 @@ def _diagnose(before: VehicleRecording, after: VehicleRecording, added_mass_kg: 
         findings=findings, baseline=base, chosen=chosen, candidates=cands_json[:40],
         linear_model=_model_dict(base_all), augmented_model=_model_dict(chosen_all),
         sessions=sessions, band_hz=(lo, hi), method=method, cross_validation=cv,
-        fit=_fit_traces(base_all, chosen_all, drives, names, hold_parts))
+        fit=_fit_traces(base_all, chosen_all, drives, names, hold_parts),
+        vehicle=before.geometry.to_dict())
 
 
 def _start_s(rec: VehicleRecording, cfg: VehicleIdentifyConfig) -> float:
