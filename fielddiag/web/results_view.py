@@ -291,6 +291,11 @@ def _summary_text(result: Mapping[str, Any]) -> str:
 
 def render_identification(result: Mapping[str, Any]) -> None:
     """Transmissibility before/after with coherence, restoring-force surface, parameters."""
+    from fielddiag.web.vehicle_view import is_full_vehicle_result, render_vehicle_identification
+
+    if is_full_vehicle_result(result):
+        render_vehicle_identification(result)
+        return
     ui.label("Parameters of the linear model (the diagnosis refits them with the physics it "
              "finds)").classes("text-base font-semibold mt-2")
     _parameter_table(result)
@@ -556,6 +561,11 @@ def render_diagnosis(result: Mapping[str, Any], recording_view=None) -> None:
     ``recording_view(windows)``, when given, draws the recording with the time windows
     shaded (the page supplies it: it knows the session files).
     """
+    from fielddiag.web.vehicle_view import is_full_vehicle_result, render_vehicle_diagnosis
+
+    if is_full_vehicle_result(result):
+        render_vehicle_diagnosis(result)
+        return
     verdict = result.get("verdict")
     if verdict:
         missing = verdict != "adequate"
