@@ -58,6 +58,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    type=arg_existing_file(),
                    help="full vehicle: drives of the same car (without the mass, another "
                    "manoeuvre) to cross-validate on")
+    p.add_argument("--refine", action="store_true",
+                   help="full vehicle: try an output-error refinement after the least squares "
+                   "and keep it if it predicts the --validate drives better")
     p.add_argument("--json", metavar="OUT.json", help="write the full result as JSON")
     p.add_argument("--plots", metavar="DIR",
                    help="write PNGs: transmissibility, restoring force, hysteresis loops")
@@ -93,11 +96,12 @@ def run(args: argparse.Namespace) -> int:
                 "(it lacks some of the roles wheel_fl..body_rr) while the other is; give two "
                 "full-vehicle drives or two single-corner drives")
         return _run_vehicle(args, band)
-    if args.added_mass_at is not None or args.validate:
+    if args.added_mass_at is not None or args.validate or args.refine:
         from fielddiag.errors import FieldDiagError
 
-        raise FieldDiagError("--added-mass-at and --validate are for full-vehicle sessions "
-                             "(roles wheel_fl..body_rr); these are single-corner drives")
+        raise FieldDiagError("--added-mass-at, --validate and --refine are for full-vehicle "
+                             "sessions (roles wheel_fl..body_rr); these are single-corner "
+                             "drives")
     for path in (args.before, args.after):
         finite_session(path)
     from fielddiag.identify import IdentifyConfig, identify_sessions
@@ -142,7 +146,8 @@ def _run_vehicle(args: argparse.Namespace, band: tuple[float, float] | None) -> 
             raise FieldDiagError(f"--validate {path}: not a full-vehicle session (roles "
                                  "wheel_fl..body_rr)")
         validate.append(read_vehicle_recording(path, label="validate"))
-    config = VehicleIdentifyConfig() if band is None else VehicleIdentifyConfig(band_hz=band)
+    config = VehicleIdentifyConfig(refine=args.refine) if band is None else \
+        VehicleIdentifyConfig(band_hz=band, refine=args.refine)
     result = identify_vehicle(before, after, added_mass_kg=args.added_mass,
                               added_mass_at_m=args.added_mass_at, validate=validate,
                               config=config)

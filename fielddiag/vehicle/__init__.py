@@ -19,6 +19,11 @@ Modules (one concern each):
 """
 
 from fielddiag.vehicle.geometry import VehicleFileError, VehicleGeometry, load_vehicle
+from fielddiag.vehicle.identify import (
+    VehicleIdentification,
+    VehicleIdentifyConfig,
+    identify_vehicle,
+)
 from fielddiag.vehicle.manoeuvres import Manoeuvre, braking, make_manoeuvre, ramp_steer, rough_road
 from fielddiag.vehicle.params import CornerParams, VehicleParams, random_vehicle
 from fielddiag.vehicle.recording import (
@@ -36,10 +41,13 @@ __all__ = [
     "VehicleDrive",
     "VehicleFileError",
     "VehicleGeometry",
+    "VehicleIdentification",
+    "VehicleIdentifyConfig",
     "VehicleParams",
     "VehicleRecording",
     "body_mass_matrix",
     "braking",
+    "identify_vehicle",
     "is_full_vehicle_session",
     "load_vehicle",
     "make_manoeuvre",

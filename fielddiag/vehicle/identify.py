@@ -16,7 +16,7 @@ output-only accelerometer data):
    moments, inertias, corner stiffness and damping, anti-roll stiffness and the roll and
    pitch moment arms, are stacked over both drives; the known added mass at its known
    position is the only non-zero right-hand side and fixes the scale. Weighted least
-   squares with a time-block sandwich covariance gives every parameter a standard
+   squares with a time-block jackknife gives every parameter a standard
    deviation, relative standard deviations and correlations.
 4. Derived quantities (centre of gravity, inertias about it) get their standard
    deviations by the delta method.
@@ -53,6 +53,7 @@ from fielddiag.vehicle.regression import (
     PARAM_NAMES,
     DriveRegressors,
     WlsResult,
+    noise_normal_equations,
     regressors,
     weighted_least_squares,
 )
@@ -79,22 +80,34 @@ class VehicleIdentifyConfig:
         long (measured: with 0.4 Hz and 3 s the estimates collapse, with 15 s they are
         right).
     block_s : float
-        Time block of the sandwich covariance [s].
+        Time block of the jackknife [s] (longer than the residuals' correlation).
     passes : int
         Times the zero-phase band-pass is applied (each pass squares the attenuation).
+    jackknife_bias : bool
+        Remove the jackknife's bias estimate from the least-squares estimate.
+    compensation_doubt, scale_floor : float
+        A systematic uncertainty of the common scale of all parameters (the added mass
+        fixes the scale of mass, inertias, stiffness and damping together; ratios such as
+        the centre of gravity do not carry it): ``compensation_doubt`` times the relative
+        change of the mass the noise compensation made, and ``scale_floor`` (relative),
+        added in quadrature to the covariance as ``s^2 theta theta^T``.
     min_duration_s : float
         Shortest drive accepted [s].
     noise_compensation : bool
         Remove the bias the accelerometer noise puts on least squares (errors in
         variables): the noise of the body sensors is measured from their redundancy
-        (:func:`body_noise_std_mps2`; the hub sensors are taken as equally noisy), pure
-        noise of that level is run through the same processing, and its share of the
-        normal equations is subtracted.
+        (:func:`body_noise_std_mps2`; the hub sensors are taken as equally noisy), that of
+        the car's acceleration signals above a quarter of the rate
+        (:func:`car_accel_noise_std_mps2`), its
+        expected share of the normal equations follows from the processing's transfer
+        functions (:func:`filter_response`,
+        :func:`~fielddiag.vehicle.regression.noise_normal_equations`) and is subtracted.
     refine : bool
         Try the output-error refinement (:mod:`fielddiag.vehicle.output_error`) when there
         are validate drives, and keep it only if it predicts their body accelerations
         better (on the identification drives it is better by construction, so they cannot
-        judge it).
+        judge it). Off by default: it costs 5-10 s on two 180 s drives, and on the
+        simulated linear cars it was never kept (``fielddiag identify --refine``).
     refine_gain : float
         Relative NRMSE improvement the refinement must bring to be kept.
     """
@@ -103,12 +116,15 @@ class VehicleIdentifyConfig:
     filter_order: int = 4
     analysis_rate_hz: float = 100.0
     trim_s: float | None = None
-    block_s: float = 2.0
+    block_s: float = 5.0
     passes: int = 1
+    jackknife_bias: bool = False
+    compensation_doubt: float = 0.1
+    scale_floor: float = 0.001
     min_duration_s: float = 40.0
     noise_compensation: bool = True
-    refine: bool = True
-    refine_gain: float = 0.02
+    refine: bool = False
+    refine_gain: float = 0.10
 
 
 def _bp(x: np.ndarray, sos: np.ndarray, times: int = 1) -> np.ndarray:
@@ -380,15 +396,53 @@ def body_noise_std_mps2(rec: VehicleRecording) -> float:
     return float(np.sqrt(np.sum(np.mean(res**2, axis=1)) / np.trace(proj)))
 
 
-def _noise_drive(rec: VehicleRecording, sigma: float, seed: int) -> VehicleRecording:
-    """A drive of pure white sensor noise (all eight accelerometers at ``sigma``)."""
-    rng = np.random.default_rng(seed)
-    return VehicleRecording(
-        wheel_accel_mps2=rng.normal(0.0, sigma, (4, rec.n)),
-        body_accel_mps2=rng.normal(0.0, sigma, (4, rec.n)),
-        sample_rate_hz=rec.sample_rate_hz, geometry=rec.geometry,
-        added_mass_kg=rec.added_mass_kg, added_mass_at_m=rec.added_mass_at_m,
-        label=rec.label, name=rec.name)
+def car_accel_noise_std_mps2(rec: VehicleRecording) -> tuple[float, float]:
+    """Noise of the car's longitudinal and lateral acceleration signals [m/s^2].
+
+    A car's own accelerations change slowly (well below a quarter of any DAQ rate), so
+    what these signals hold above ``fs / 4`` is taken as white noise: its std there,
+    times sqrt(2) for the half of the band below. 0 for a missing signal.
+
+    Returns
+    -------
+    (float, float)
+        Longitudinal, lateral.
+    """
+    fs = float(rec.sample_rate_hz)
+    sos = signal.butter(4, 0.25 * fs, "highpass", fs=fs, output="sos")
+    out = []
+    for v in (rec.accel_long_mps2, rec.accel_lat_mps2):
+        if v is None or len(v) < 100:
+            out.append(0.0)
+            continue
+        hp = signal.sosfiltfilt(sos, np.asarray(v, float) - float(np.mean(v)))
+        out.append(float(np.std(hp) * np.sqrt(2.0)))
+    return out[0], out[1]
+
+
+def filter_response(rec: VehicleRecording, cfg: VehicleIdentifyConfig) -> np.ndarray:
+    """Lag-0 cross-correlations of the acceleration, velocity and displacement filters of
+    :func:`prepare_drive` for unit white noise: ``R[f, g] = (1/n) sum_k H_f H_g*``.
+
+    Returns
+    -------
+    ndarray (3, 3)
+    """
+    fs, n = float(rec.sample_rate_hz), rec.n
+    lo, hi = cfg.band_hz
+    sos = signal.butter(cfg.filter_order, [lo, hi], "bandpass", fs=fs, output="sos")
+    f = sp_fft.rfftfreq(n, 1.0 / fs)
+    u = np.clip((f - 0.25 * lo) / (0.25 * lo), 0.0, 1.0)
+    _, bresp = signal.sosfreqz(sos, worN=f, fs=fs)
+    gain = (0.5 - 0.5 * np.cos(np.pi * u)) * np.abs(bresp) ** (2 * cfg.passes)
+    jw = 2j * np.pi * f
+    jw[0] = 1.0
+    h = np.array([gain, gain / jw, gain / jw**2])
+    wts = np.full(f.size, 2.0)
+    wts[0] = 1.0
+    if n % 2 == 0:
+        wts[-1] = 1.0
+    return np.real((h * wts) @ h.conj().T) / n
 
 
 def _nrmse(pred: np.ndarray, meas: np.ndarray) -> float:
@@ -469,19 +523,28 @@ def identify_vehicle(
     if np.any(col_norm[fitted] == 0):
         raise InsufficientDataError("the drives do not move the body or the suspensions; drive "
                                     "over a rough road")
-    noise = None
-    sigmas = {}
+    noise: dict[int, tuple[np.ndarray, np.ndarray]] | None = None
     if config.noise_compensation:
-        nd = []
+        noise = {}
         for k, (rec, d) in enumerate(((before, d0), (after, d1))):
-            sigmas[rec.label or ("before", "after")[k]] = s = body_noise_std_mps2(rec)
-            dn = prepare_drive(_noise_drive(rec, s, 12345 + k), config)
-            dn.added_mass_kg, dn.added_mass_at_m = d.added_mass_kg, d.added_mass_at_m
-            nd.append(dn)
-        an, bn, _, _ = regressors(nd)
-        noise = (an, bn)
+            sigma = body_noise_std_mps2(rec)  # the hubs' sensors taken as equally noisy
+            noise.update(noise_normal_equations(d, [sigma] * 8,
+                                                filter_response(rec, config), 3 * k,
+                                                car_accel_noise_std_mps2(rec)))
     block = max(1, int(round(config.block_s * d0.rate_hz)))
-    w = weighted_least_squares(a, b, group, tidx, fitted, block, noise)
+    w = weighted_least_squares(a, b, group, tidx, fitted, block, noise, config.jackknife_bias)
+    if noise:
+        # the noise compensation is itself uncertain (it takes the hub sensors as noisy as
+        # the body's; in tests with known truth it removed 97-100 % of a 10 % bias): carry
+        # a tenth of the scale change it made as a fully correlated scale uncertainty, plus
+        # a floor for the processing (bias without noise: 0.04-0.13 %, measured)
+        raw = weighted_least_squares(a, b, group, tidx, fitted, block, None)
+        shift = w.theta[0] / raw.theta[0] - 1.0
+        w.scale_std = float(np.hypot(config.compensation_doubt * shift, config.scale_floor))
+    else:
+        w.scale_std = float(config.scale_floor)
+    th = np.nan_to_num(w.theta)
+    w.cov = w.cov + w.scale_std**2 * np.outer(th, th)
     dvs = []
     for k, rec in enumerate(validate):
         if rec.added_mass_kg and rec.added_mass_at_m is None:
@@ -498,7 +561,11 @@ def identify_vehicle(
                       "nrmse_least_squares": ls_score, "nrmse_output_error": oe_score,
                       "nrmse_identification": [oe.nrmse_start, oe.nrmse]}
         if better:
+            scale_std = w.scale_std
             w = oe.wls
+            w.scale_std = scale_std
+            th = np.nan_to_num(w.theta)
+            w.cov = w.cov + scale_std**2 * np.outer(th, th)
     est = _derived(w)
     fit = {"before": sim_nrmse(w.theta, d0), "after": sim_nrmse(w.theta, d1)}
     cv = [{"session": name, "nrmse": sim_nrmse(w.theta, d)} for name, d in dvs]
@@ -515,7 +582,9 @@ def identify_vehicle(
         "(least squares), 3 body equations linear in 18 parameters stacked over the drive "
         f"before and after adding {added_mass_kg:g} kg at ({at[0]:g}, {at[1]:g}) m, "
         "weighted least squares (per-equation weights, sensor-noise bias compensated), "
-        f"{w.n_blocks} time blocks of {config.block_s:g} s for the sandwich covariance, "
+        f"a {100 * w.scale_std:.2f} % systematic scale uncertainty added, "
+        f"delete-a-block jackknife over {w.n_blocks} blocks of {config.block_s:g} s for the "
+        "covariance and the bias, "
         f"delta method for derived quantities{refined}; NRMSE = RMS error / RMS of the "
         "body accelerations simulated from the hub motion, after the first "
         f"{SETTLE_S:g} s")

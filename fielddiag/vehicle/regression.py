@@ -19,8 +19,10 @@ added mass has a zero right-hand side; the known ``dM`` fixes the scale.
 
 Weighted least squares (Gautier, seed 003): an ordinary fit, then each equation of each
 drive weighted by the inverse of its residual standard deviation and solved again. The
-covariance is a sandwich over time blocks (the band-passed residuals are correlated in
-time, so the textbook ``sigma^2 (W^T W)^-1`` would be too optimistic).
+covariance is a delete-a-block jackknife over time blocks (the band-passed residuals are
+correlated in time, so the textbook ``sigma^2 (W^T W)^-1`` would be too optimistic, and
+the noise compensation makes the estimator nonlinear in the data); optionally the
+jackknife's bias estimate is removed from the estimate.
 """
 
 from __future__ import annotations
@@ -188,7 +190,9 @@ class WlsResult:
     group_sigma : ndarray
         Residual standard deviation of each equation group (unweighted units).
     n_blocks : int
-        Time blocks of the sandwich covariance.
+        Time blocks of the jackknife.
+    scale_std : float
+        Relative systematic uncertainty of the common scale included in ``cov``.
     """
 
     theta: np.ndarray
@@ -196,6 +200,7 @@ class WlsResult:
     fitted: np.ndarray
     group_sigma: np.ndarray
     n_blocks: int
+    scale_std: float = 0.0
 
     @property
     def std(self) -> np.ndarray:
@@ -212,8 +217,9 @@ class WlsResult:
 
 def weighted_least_squares(a: np.ndarray, b: np.ndarray, group: np.ndarray, tidx: np.ndarray,
                            fitted: np.ndarray, block_samples: int,
-                           noise: tuple[np.ndarray, np.ndarray] | None = None) -> WlsResult:
-    """Solve ``A theta = b`` by weighted least squares with a block-sandwich covariance.
+                           noise: dict[int, tuple[np.ndarray, np.ndarray]] | None = None,
+                           bias_correction: bool = False) -> WlsResult:
+    """Solve ``A theta = b`` by weighted least squares with a block-jackknife covariance.
 
     Parameters
     ----------
@@ -222,13 +228,15 @@ def weighted_least_squares(a: np.ndarray, b: np.ndarray, group: np.ndarray, tidx
     fitted : ndarray of bool
         Columns to fit (the others are held at 0).
     block_samples : int
-        Samples per time block of the covariance (all three equations of a block together).
-    noise : (A_n, b_n) or None
-        The same regressor and right-hand side built from sensor noise alone (rows as
-        ``a``, ``b``). The regressors are measured with noise (errors in variables), which
-        biases ordinary least squares towards zero; the noise's contribution to the normal
-        equations, ``A_n^T A_n`` and ``A_n^T b_n``, is subtracted (bias-compensated least
-        squares).
+        Samples per time block of the jackknife (all three equations of a block together).
+    noise : dict group -> (N_AA, N_Ab) or None
+        The expected contribution of the sensor noise to each equation group's
+        (unweighted) normal equations, ``E[A_n^T A_n]`` (N_PARAMS, N_PARAMS) and
+        ``E[A_n^T b_n]`` (N_PARAMS,) (:func:`noise_normal_equations`). The regressors are
+        measured with noise (errors in variables), which biases least squares towards
+        zero; these are subtracted (bias-compensated least squares).
+    bias_correction : bool
+        Subtract the jackknife's estimate of the estimator's bias.
 
     Returns
     -------
@@ -239,18 +247,17 @@ def weighted_least_squares(a: np.ndarray, b: np.ndarray, group: np.ndarray, tidx
     scale = np.linalg.norm(af, axis=0)
     scale[scale == 0] = 1.0
     a_s = af / scale
-    an_s = None if noise is None else noise[0][:, cols] / scale
-    bn = None if noise is None else noise[1]
-
-    def solve(w: np.ndarray) -> np.ndarray:
+    def solve(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         aw, bw = a_s * w[:, None], b * w
         lhs, rhs = aw.T @ aw, aw.T @ bw
-        if an_s is not None:
-            anw, bnw = an_s * w[:, None], bn * w
-            lhs, rhs = lhs - anw.T @ anw, rhs - anw.T @ bnw
+        for g, (naa, nab) in (noise or {}).items():
+            wg2 = float(w[np.argmax(group == g)]) ** 2
+            lhs = lhs - wg2 * naa[np.ix_(cols, cols)] / np.outer(scale, scale)
+            rhs = rhs - wg2 * nab[cols] / scale
         return np.linalg.solve(lhs, rhs), lhs
 
-    th_s, _ = solve(np.ones(b.size))
+    w = np.ones(b.size)
+    th_s, normal = solve(w)
     groups = np.unique(group)
     sigma = np.ones(groups.max() + 1)
     for _ in range(2):  # residuals -> per-equation weights -> WLS (once more with its residuals)
@@ -261,18 +268,89 @@ def weighted_least_squares(a: np.ndarray, b: np.ndarray, group: np.ndarray, tidx
         w = 1.0 / sigma[group]
         th_s, normal = solve(w)
     aw, bw = a_s * w[:, None], b * w
-    ew = bw - aw @ th_s
-    block = tidx // max(1, block_samples) + 0  # drives are apart by 1e9 samples
+    rhs_full = aw.T @ bw
+    for g, (_, nab) in (noise or {}).items():
+        rhs_full = rhs_full - (1.0 / sigma[g]) ** 2 * nab[cols] / scale
+    # delete-a-block jackknife: blocks of whole seconds in each drive, all three equations
+    block = tidx // max(1, block_samples)  # drives are apart by 1e9 samples
     ub, inv = np.unique(block, return_inverse=True)
-    gsum = np.zeros((ub.size, cols.size))
-    np.add.at(gsum, inv, aw * ew[:, None])
-    meat = gsum.T @ gsum
-    n_rows, p = aw.shape
-    meat *= ub.size / max(ub.size - 1, 1) * n_rows / max(n_rows - p, 1)
-    bread = np.linalg.pinv(normal)
-    cov_s = bread @ meat @ bread
+    n_g = {g: int(np.sum(group == g)) for g in groups}
+    reps = []
+    for i in range(ub.size):
+        m = inv == i
+        lhs_i = normal - aw[m].T @ aw[m]
+        rhs_i = rhs_full - aw[m].T @ bw[m]
+        for g, (naa, nab) in (noise or {}).items():
+            frac = np.sum(m & (group == g)) / n_g[g]
+            if frac:
+                wg2 = (1.0 / sigma[g]) ** 2
+                lhs_i = lhs_i + frac * wg2 * naa[np.ix_(cols, cols)] / np.outer(scale, scale)
+                rhs_i = rhs_i + frac * wg2 * nab[cols] / scale
+        reps.append(np.linalg.solve(lhs_i, rhs_i))
+    reps_a = np.array(reps)
+    nb = ub.size
+    mean_rep = reps_a.mean(axis=0)
+    if bias_correction:
+        th_s = th_s - (nb - 1) * (mean_rep - th_s)  # jackknife bias correction
+    dev = reps_a - mean_rep
+    cov_s = (nb - 1) / nb * dev.T @ dev
     theta = np.full(a.shape[1], np.nan)
     theta[cols] = th_s / scale
     cov = np.zeros((a.shape[1], a.shape[1]))
     cov[np.ix_(cols, cols)] = cov_s / np.outer(scale, scale)
-    return WlsResult(theta, cov, np.asarray(fitted, bool), sigma, int(ub.size))
+    return WlsResult(theta, cov, np.asarray(fitted, bool), sigma, int(nb))
+
+
+def noise_normal_equations(d: DriveRegressors, sigma_mps2: Sequence[float],
+                           response: np.ndarray, first_group: int,
+                           car_sigma_mps2: tuple[float, float] = (0.0, 0.0)
+                           ) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """Expected share of white accelerometer noise in one drive's normal equations.
+
+    Every regressor is a linear map of the eight channels' noise through three filters
+    (acceleration, velocity, displacement: the processing's transfer functions), so its
+    expected products follow from the filters' lag-0 cross-correlations ``response``.
+    The maps are found by running :func:`equation_rows` on unit inputs.
+
+    Parameters
+    ----------
+    d : DriveRegressors
+        The drive (geometry, added mass, number of samples).
+    sigma_mps2 : sequence of 8 float
+        Noise std of the hub (fl, fr, rl, rr) and body (fl, fr, rl, rr) channels [m/s^2].
+    response : ndarray (3, 3)
+        ``R[f, g] = sum_k h_f[k] h_g[k]`` of the acceleration, velocity and displacement
+        filters for unit white noise.
+    first_group : int
+        Group id of this drive's heave equation (``3 * drive``).
+    car_sigma_mps2 : (float, float)
+        Noise std of the car's longitudinal and lateral acceleration signals [m/s^2]
+        (they are regressors of the pitch and roll moment arms).
+
+    Returns
+    -------
+    dict group -> (E[A^T A], E[A^T b])
+        Sums over the drive's samples, unweighted.
+    """
+    nb = 24  # 8 channels x 3 filters
+    unit = np.eye(nb).reshape(8, 3, nb)  # [channel, filter, basis]
+    wheel, body = unit[:4], unit[4:]
+    pinv = np.linalg.pinv(d.sensor_matrix)
+    cm = np.column_stack([np.ones(4), d.corner_x, d.corner_y])
+    basis = DriveRegressors(
+        qdd=pinv @ body[:, 0], r=cm @ pinv @ body[:, 2] - wheel[:, 2],
+        rd=cm @ pinv @ body[:, 1] - wheel[:, 1], a_long=np.zeros(nb), a_lat=np.zeros(nb),
+        body_accel=body[:, 0], corner_x=d.corner_x, corner_y=d.corner_y,
+        sensor_matrix=d.sensor_matrix, added_mass_kg=d.added_mass_kg,
+        added_mass_at_m=d.added_mass_at_m, rate_hz=d.rate_hz)
+    a, b = equation_rows(basis)  # (3, 24, P), (3, 24)
+    s = np.zeros((nb, nb))
+    for ch in range(8):
+        idx = slice(3 * ch, 3 * ch + 3)
+        s[idx, idx] = float(sigma_mps2[ch]) ** 2 * response
+    out = {}
+    for e in range(3):
+        out[first_group + e] = (d.n * a[e].T @ s @ a[e], d.n * a[e].T @ s @ b[e])
+    out[first_group + 1][0][16, 16] += d.n * car_sigma_mps2[0] ** 2 * response[0, 0]
+    out[first_group + 2][0][17, 17] += d.n * car_sigma_mps2[1] ** 2 * response[0, 0]
+    return out

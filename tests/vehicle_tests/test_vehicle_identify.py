@@ -131,3 +131,33 @@ def test_cli_csv_import_identify_round_trip(tmp_path, capsys):
         assert proc.returncode == 1, proc.stderr
         assert "Traceback" not in proc.stderr and words in proc.stderr
         assert len(proc.stderr.strip().splitlines()) == 1
+
+
+def test_body_simulated_from_the_hubs_matches_with_the_true_parameters(pair):
+    """The output-error model (body driven by the measured hub motion) with the simulated
+    car's own parameters reproduces the measured body accelerations; the refinement
+    started from the least squares does not make the fit worse."""
+    from fielddiag.vehicle import body_mass_matrix
+    from fielddiag.vehicle.identify import prepare_drive, sim_nrmse
+    from fielddiag.vehicle.output_error import refine_output_error
+    from fielddiag.vehicle.regression import N_PARAMS
+
+    car, before, after, val, at = pair
+    mq = body_mass_matrix(car)
+    theta = np.zeros(N_PARAMS)
+    theta[:6] = [mq[0, 0], mq[0, 1], mq[0, 2], mq[1, 1], mq[2, 2], mq[1, 2]]
+    for i, c in enumerate(("fl", "fr", "rl", "rr")):
+        theta[6 + i] = car.corner(c).stiffness_n_per_m
+        theta[10 + i] = car.corner(c).damping_ns_per_m
+    theta[14:16] = car.anti_roll_stiffness_front_n_per_m, car.anti_roll_stiffness_rear_n_per_m
+    theta[16:18] = car.sprung_mass_kg * car.cog_height_m
+    d0, dv = prepare_drive(before), prepare_drive(val)
+    # noise 0.03 m/s2 on ~1.5 m/s2 of body acceleration: a few % at most
+    assert sim_nrmse(theta, d0) < 0.05
+    assert sim_nrmse(theta, dv) < 0.05
+    res = identify_vehicle(before, after, 160.0, at)
+    d1 = prepare_drive(after)
+    d1.added_mass_kg, d1.added_mass_at_m = 160.0, at
+    oe = refine_output_error(res.wls, [d0, d1])
+    assert oe.nrmse <= oe.nrmse_start * 1.001
+    assert oe.wls.theta[0] == pytest.approx(car.sprung_mass_kg, rel=0.03)

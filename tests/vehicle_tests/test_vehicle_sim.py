@@ -116,12 +116,13 @@ def test_refusals():
 def test_fast_and_session_round_trip(tmp_path):
     car = VehicleParams()
     simulate_vehicle(car, duration_s=1.0, seed=0)  # compile (cached on disk)
-    t0 = time.perf_counter()
+    t0 = time.process_time()  # CPU time: the machine is shared, wall time is not ours
     d = simulate_vehicle(car, duration_s=180.0, sample_rate_hz=500.0, seed=5,
                          effects={"fl": [CoulombFriction(friction_force_n=60.0)]},
                          added_mass_kg=100.0, added_mass_at_m=(2.0, 0.3))
-    elapsed = time.perf_counter() - t0
-    assert elapsed < 6.0, elapsed  # brief: two 180 s drives at 500 Hz in a few seconds
+    elapsed = time.process_time() - t0
+    # brief: two 180 s drives at 500 Hz in a few seconds (measured 1.3 s each on an idle core)
+    assert elapsed < 3.0, elapsed
     assert d.wheel_accel_mps2.shape == (4, 90000)
     path = write_vehicle_session(d, tmp_path / "d.h5")
     r = read_vehicle_recording(path)
