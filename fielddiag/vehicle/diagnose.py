@@ -54,8 +54,9 @@ from fielddiag.sim._common import G_MPS2
 from fielddiag.vehicle.identify import (
     VehicleIdentifyConfig,
     _derived,
-    _noise_drive,
     body_noise_std_mps2,
+    car_accel_noise_std_mps2,
+    filter_response,
     integrate_twice,
     prepare_drive,
 )
@@ -66,6 +67,7 @@ from fielddiag.vehicle.regression import (
     DriveRegressors,
     equation_rows,
     mass_matrix,
+    noise_normal_equations,
     weighted_least_squares,
 )
 
@@ -272,9 +274,26 @@ class _Data:
     """Both drives' rows and the extra columns of one model, split fit / held out."""
 
     drives: list[DriveRegressors]
-    noise: list[DriveRegressors] | None
+    noise: dict[int, tuple[np.ndarray, np.ndarray]] | None  # group -> E[A^T A], E[A^T b]
     split: list[int]  # first held-out sample of each drive
-    noise_rows: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+
+    def noise_for(self, parts: Sequence[slice], n_cols: int
+                  ) -> dict[int, tuple[np.ndarray, np.ndarray]] | None:
+        """The noise's expected normal equations for the samples of ``parts`` (a share of
+        the drive's sums), padded with zeros for the effects' columns (their noise is
+        left out: the effects are evaluated on the measured motion)."""
+        if self.noise is None:
+            return None
+        out = {}
+        for g, (naa, nab) in self.noise.items():
+            d = self.drives[g // 3]
+            frac = len(range(*parts[g // 3].indices(d.n))) / d.n
+            aa = np.zeros((n_cols, n_cols))
+            ab = np.zeros(n_cols)
+            aa[:N_PARAMS, :N_PARAMS] = frac * naa
+            ab[:N_PARAMS] = frac * nab
+            out[g] = (aa, ab)
+        return out
 
 
 def _rows(drives: Sequence[DriveRegressors], terms: Sequence[_Term],
@@ -307,14 +326,7 @@ class _Fitted:
 def _fit(data: _Data, terms: Sequence[_Term], parts: Sequence[slice], fitted_base: np.ndarray,
          block: int) -> _Fitted:
     a, b, g, t = _rows(data.drives, terms, parts)
-    noise = None
-    if data.noise is not None:
-        key = repr(parts)
-        if key not in data.noise_rows:
-            data.noise_rows[key] = _rows(data.noise, (), parts)[:2]
-        an, bn = data.noise_rows[key]
-        an = np.concatenate([an, np.zeros((an.shape[0], a.shape[1] - N_PARAMS))], axis=1)
-        noise = (an, bn)
+    noise = data.noise_for(parts, a.shape[1])
     fitted = np.concatenate([fitted_base, np.ones(a.shape[1] - N_PARAMS, bool)])
     for term in terms:
         fitted[term.replaced_columns()] = False
@@ -339,18 +351,18 @@ class _Screen:
         self.data, self.fitted_base = data, fitted_base
         self.g, self.h = np.zeros((p, p)), np.zeros(p)
         self.items = []
+        noise = data.noise_for(parts, p) or {}
         for k, (d, part) in enumerate(zip(data.drives, parts, strict=True)):
             a, b = _equation_rows(d)
-            an, bn = _equation_rows(data.noise[k]) if data.noise is not None else (None, None)
             for e in range(3):
                 w2 = 1.0 / sigma[3 * k + e] ** 2
                 ae, be = a[e, part], b[e, part]
                 self.g += w2 * ae.T @ ae
                 self.h += w2 * ae.T @ be
-                if an is not None:
-                    ane, bne = an[e, part], bn[e, part]
-                    self.g -= w2 * ane.T @ ane
-                    self.h -= w2 * ane.T @ bne
+                if 3 * k + e in noise:
+                    naa, nab = noise[3 * k + e]
+                    self.g -= w2 * naa
+                    self.h -= w2 * nab
                 self.items.append((d, e, part, w2, ae, be))
 
     def fit(self, terms: Sequence[_Term]) -> _Fitted:
@@ -695,7 +707,8 @@ def _diagnose(before: VehicleRecording, after: VehicleRecording, added_mass_kg: 
     icfg = config.identify
     say("preparing the drives (integration, band-pass)")
     drives = []
-    noise = [] if icfg.noise_compensation else None
+    noise: dict[int, tuple[np.ndarray, np.ndarray]] | None = (
+        {} if icfg.noise_compensation else None)
     for k, (rec, dm, pos) in enumerate(((before, 0.0, (0.0, 0.0)),
                                         (after, added_mass_kg, at))):
         d = prepare_drive(rec, icfg)
@@ -703,10 +716,10 @@ def _diagnose(before: VehicleRecording, after: VehicleRecording, added_mass_kg: 
         d.start_s = _start_s(rec, icfg)
         _RAW[id(d)] = (d, _raw_motion(rec, icfg))
         drives.append(d)
-        if noise is not None:
-            dn = prepare_drive(_noise_drive(rec, body_noise_std_mps2(rec), 12345 + k), icfg)
-            dn.added_mass_kg, dn.added_mass_at_m = dm, pos
-            noise.append(dn)
+        if noise is not None:  # as the identification (the hubs taken as noisy as the body)
+            noise.update(noise_normal_equations(d, [body_noise_std_mps2(rec)] * 8,
+                                                filter_response(rec, icfg), 3 * k,
+                                                car_accel_noise_std_mps2(rec)))
     data = _Data(drives, noise, [int(round((1 - config.holdout_fraction) * d.n))
                                  for d in drives])
     fit_parts = [slice(0, s) for s in data.split]
