@@ -50,15 +50,19 @@ def test_simulate_then_info_json(tmp_path, capsys):
 
 
 def test_errors_are_one_line_exit_1(tmp_path):
-    for args, message in [
+    cases = [
         (("info", str(tmp_path / "none.h5")), "does not exist"),
         (("simulate", "-o", str(tmp_path / "x.h5"), "--effect", "bogus"), "unknown effect"),
         (("simulate", "-o", str(tmp_path / "x.h5"), "--car", "wings=2"), "unknown car parameter"),
-    ]:
-        proc = _cli(*args)
-        assert proc.returncode == 1, proc.stderr
-        assert "Traceback" not in proc.stderr and message in proc.stderr
-        assert len(proc.stderr.strip().splitlines()) == 1
+    ]
+    procs = [subprocess.Popen([sys.executable, "-m", "fielddiag.cli", *args],  # at once
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+             for args, _ in cases]
+    for proc, (_, message) in zip(procs, cases, strict=True):
+        _, stderr = proc.communicate(timeout=120)
+        assert proc.returncode == 1, stderr
+        assert "Traceback" not in stderr and message in stderr
+        assert len(stderr.strip().splitlines()) == 1
 
 
 def _check_demo_results(demo: Path) -> None:
