@@ -73,9 +73,10 @@ def noise_floor(case: rc.Case, drives: list) -> float | None:
         return None
 
 
-def run_case(seed: int, duration_s: float | None = None) -> dict[str, Any]:
+def run_case(seed: int, duration_s: float | None = None,
+             families: tuple[str, ...] | None = None) -> dict[str, Any]:
     """Draw, simulate, diagnose and score one case; a failure becomes a row with ``error``."""
-    case = rc.draw_case(seed, duration_s=duration_s)
+    case = rc.draw_case(seed, duration_s=duration_s, families=families)
     row: dict[str, Any] = {"seed": seed, "family": case.family, "case": case.to_dict()}
     try:
         from fielddiag.diagnose.engine import diagnose_drives
@@ -297,7 +298,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, default=None, help="JSON file for the per-case rows")
     ap.add_argument("--duration", type=float, default=None,
                     help="override every drive's duration [s] (quick runs)")
+    ap.add_argument("--families", default=None,
+                    help="comma-separated effect families to draw from (default: all)")
     args = ap.parse_args(argv)
+    families = tuple(args.families.split(",")) if args.families else None
     if args.tables is not None:
         saved = json.loads(args.tables.read_text())
         rows = saved["rows"]
@@ -320,7 +324,8 @@ def main(argv: list[str] | None = None) -> int:
     print()
     print(f"Run: seed {args.seed}, N = {args.n} (seeds {args.seed}-{args.seed + args.n - 1}), "
           f"{args.jobs} worker(s), fielddiag {__version__} at {head}"
-          + (f", every drive {args.duration:g} s" if args.duration else ""))
+          + (f", every drive {args.duration:g} s" if args.duration else "")
+          + (f", families {', '.join(families)} only" if families else ""))
     print(f"Effects the diagnosis tries: {', '.join(diagnosis_effects())}")
     print(rc.METHOD)
     print(flush=True)
@@ -329,6 +334,7 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     meta = {"seed": args.seed, "n": args.n, "jobs": args.jobs, "git_head": head,
             "fielddiag_version": __version__, "duration_override_s": args.duration,
+            "families": list(families) if families else None,
             "method": rc.METHOD, "library": list(diagnosis_effects())}
 
     def done(i: int, row: dict) -> None:
@@ -340,10 +346,10 @@ def main(argv: list[str] | None = None) -> int:
 
     if args.jobs == 1:
         for i, s in enumerate(seeds, 1):
-            done(i, run_case(s, args.duration))
+            done(i, run_case(s, args.duration, families))
     else:
         with ProcessPoolExecutor(max_workers=args.jobs) as pool:
-            futs = [pool.submit(run_case, s, args.duration) for s in seeds]
+            futs = [pool.submit(run_case, s, args.duration, families) for s in seeds]
             for i, fut in enumerate(as_completed(futs), 1):
                 done(i, fut.result())
     rows.sort(key=lambda r: r["seed"])

@@ -207,6 +207,33 @@ def _hysteretic(s, car, rng):
             "yield_displacement_m": float(rng.uniform(1e-3, 5e-3))}
 
 
+def _bouc_wen(s, car, rng):
+    return {"hysteretic_force_n": s * 0.007 * car.body_mass_kg * GRAVITY_MPS2,
+            "yield_displacement_m": float(rng.uniform(5e-4, 3e-3)),
+            "yield_exponent": float(rng.uniform(1.0, 3.0))}
+
+
+def _digressive(s, car, rng):
+    a = 0.8 * math.tanh(0.125 * s)  # s = 1: the slope drops 10 % above the knee
+    c = car.suspension_damping_ns_per_m
+    return {"compression_knee_mps": float(rng.uniform(0.05, 0.3)),
+            "compression_drop_ns_per_m": a * c * float(rng.uniform(0.5, 1.0)),
+            "rebound_knee_mps": float(rng.uniform(0.05, 0.3)),
+            "rebound_drop_ns_per_m": a * c * float(rng.uniform(0.5, 1.0))}
+
+
+def _top_mount(s, car, rng):
+    # the mount's corner k_m / (2 pi C2) falls from ~60 body frequencies (s = 1) to ~6
+    return {"suspension_damping_ns_per_m": car.suspension_damping_ns_per_m,
+            "mount_stiffness_n_per_m": 60.0 / s * car.suspension_stiffness_n_per_m}
+
+
+def _travel_damping(s, car, rng):
+    # s = 1: damping 10 % higher at 30 mm from the ride height (it grows as travel^2)
+    return {"extra_damping_ns_per_m": s * 0.1 * car.suspension_damping_ns_per_m,
+            "reference_travel_m": 0.03}
+
+
 def _generic(name: str) -> Recipe:
     """Force-scaled parameters at ``s`` x typical (scaled to the sprung mass), the others
     at their default or typical value: for a family without a recipe of its own."""
@@ -231,6 +258,10 @@ STRENGTH_RECIPES: dict[str, Recipe] = {
     "asymmetric_damping": _asymmetric,
     "quadratic_damping": _quadratic,
     "hysteretic_spring": _hysteretic,
+    "bouc_wen": _bouc_wen,
+    "digressive_damping": _digressive,
+    "series_top_mount": _top_mount,
+    "travel_dependent_damping": _travel_damping,
 }
 
 
@@ -256,7 +287,8 @@ def _log_uniform(rng: np.random.Generator, lo: float, hi: float) -> float:
     return float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
 
 
-def draw_case(seed: int, *, duration_s: float | None = None) -> Case:
+def draw_case(seed: int, *, duration_s: float | None = None,
+              families: tuple[str, ...] | None = None) -> Case:
     """Draw one case from ``seed`` (deterministic; see :data:`METHOD`).
 
     Parameters
@@ -266,6 +298,9 @@ def draw_case(seed: int, *, duration_s: float | None = None) -> Case:
     duration_s : float or None
         Override the drawn duration (short cases for tests); everything else is drawn
         exactly as without it.
+    families : tuple of str or None
+        Draw the effects from these families only (a run that concentrates on new
+        families); None: every family of the registry.
 
     Returns
     -------
@@ -304,7 +339,8 @@ def draw_case(seed: int, *, duration_s: float | None = None) -> Case:
     u = rp.random()
     n_eff = 0 if u < PHYSICS_PROBABILITY["linear"] else (
         1 if u < PHYSICS_PROBABILITY["linear"] + PHYSICS_PROBABILITY["single"] else 2)
-    fams = effect_families()
+    fams = effect_families() if families is None else tuple(sorted(families))
+    n_eff = min(n_eff, len(fams))
     names = sorted(str(n) for n in rp.choice(fams, size=n_eff, replace=False))
     effects, strengths = [], []
     for name in names:
@@ -462,7 +498,10 @@ effect registry
           (friction s x 0.7 % of the sprung weight; cubic s x 0.075 K2 / (30 mm)^2;
           bump stop s x K2, its gap 8-40 mm beyond the loaded car's rest position;
           asymmetric damper C2 (1 -+ a), a = 0.8 tanh(s / 8); quadratic s x 600 N s2/m2 x
-          C2 / 1800; hysteresis s x 0.1 K2; a family without a recipe: s x typical values)
+          C2 / 1800; Dahl hysteresis s x 0.1 K2; Bouc-Wen s x 0.7 % of the sprung weight,
+          yield 0.5-3 mm, exponent 1-3; digressive damper knees 0.05-0.3 m/s, drops
+          a x (0.5-1) x C2; top mount in series with C2, k_m = 60 K2 / s; damping growing
+          with travel s x 0.1 C2 at 30 mm; a family without a recipe: s x typical values)
   nuisances, each independently: gain change {100 * GAIN_CHANGE[0]:g}-\
 {100 * GAIN_CHANGE[1]:g} % on one channel of the 'after' drive (p = \
 {NUISANCE_PROBABILITY['gain_change']:g}),

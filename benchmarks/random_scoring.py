@@ -92,6 +92,15 @@ def ride_height_reported(out: dict[str, Any]) -> str | None:
     return None
 
 
+#: Effects that model the same physics in two forms: naming either is naming it.
+SAME_PHYSICS = {"hysteretic_spring": "hysteresis", "bouc_wen": "hysteresis"}
+
+
+def physics_of(name: str) -> str:
+    """The physics an effect name stands for (hysteresis for Dahl and Bouc-Wen)."""
+    return SAME_PHYSICS.get(name, name)
+
+
 def expected_names(effects: list[tuple[str, dict]], library: tuple[str, ...]) -> list[str]:
     """What a correct diagnosis names for each true effect: the effect if the diagnosis
     tries it, else ``unexplained``."""
@@ -181,7 +190,8 @@ def score_case(case: Any, out: dict[str, Any], floor_nrmse: float | None,
             "reported": kind in reported,
         }
     posdep = [n for n, p in effects if position_dependent(n, p)]
-    top1 = bool(named) and named[0] in expected if effects else None
+    top1 = (bool(named) and physics_of(named[0]) in {physics_of(e) for e in expected}
+            if effects else None)
     pos_errs = [e["rel_error"] for e in errs if e["effect"] in posdep]
     rh = ride_height_reported(out)
     truth_rh = "restored" if case.ride_height_restored else "passive"
@@ -206,7 +216,8 @@ def score_case(case: Any, out: dict[str, Any], floor_nrmse: float | None,
         "named": named,
         "detected": bool(found),
         "top1": top1,
-        "all_named": set(expected) <= set(named) if effects else None,
+        "all_named": ({physics_of(e) for e in expected} <= {physics_of(n) for n in named}
+                      if effects else None),
         "false_alarm": bool(found) if not effects else None,
         "param_errors": errs,
         "max_param_error": max((e["rel_error"] for e in errs), default=None),

@@ -432,13 +432,25 @@ def _cases() -> list[Scenario]:
             expected_effects=("cubic_stiffness", "bump_stop"),
         )
     )
-    # Physics outside the library.
     add(
         Scenario(
             "quadratic_damping",
-            "velocity-squared damping (outside the library)",
+            "velocity-squared (orifice) damping",
             effects=(("quadratic_damping", {"damping_ns2_per_m2": 3000.0}),),
             seed=60,
+            expected_verdict="missing_physics",
+            expected_effects=("quadratic_damping",),
+        )
+    )
+    # Physics outside the library.
+    add(
+        Scenario(
+            "travel_dependent_damping",
+            "damping growing with travel, a position-sensitive damper (outside the library)",
+            effects=(("travel_dependent_damping", {"extra_damping_ns_per_m": 1800.0,
+                                                   "reference_travel_m": 0.03}),),
+            bumps=6,
+            seed=61,
             expected_verdict="missing_physics",
             expected_effects=("unexplained",),
         )

@@ -406,6 +406,28 @@ def _worker_main() -> None:  # pragma: no cover (runs in the worker process)
     _serve(sys.stdin.fileno(), sys.stdout.fileno(), parent)
 
 
+def _close_inherited_fds(keep: tuple[int, ...]) -> None:  # pragma: no cover (in the child)
+    """In a forked worker: close every descriptor inherited from the parent except
+    stdin/stdout/stderr and ``keep``, as ``subprocess`` does for a new interpreter.
+
+    Above all the parent's sockets: a worker holding a copy of a server's connection keeps
+    it open after the server has closed it (no FIN is sent while a copy is open), so a
+    browser reuses that keep-alive connection for its next request and waits for an answer
+    forever (the dashboard's page then stopped updating after a session page had forked
+    the worker). A serial port or pty held by the worker would likewise never hang up.
+    """
+    low = 3
+    for fd in sorted(set(keep)):
+        if fd >= low:
+            os.closerange(low, fd)
+            low = fd + 1
+    try:
+        high = os.sysconf("SC_OPEN_MAX")
+    except (AttributeError, ValueError, OSError):
+        high = 65536
+    os.closerange(low, max(high, low))
+
+
 def _can_fork() -> bool:
     """Fork the worker (about 10 ms, h5py already loaded) from a process with one thread
     only, such as the CLI; with more threads (the dashboard) one of them could hold a lock
@@ -436,8 +458,7 @@ class _Worker:
             pid = os.fork()
             if pid == 0:  # pragma: no cover (the child)
                 try:
-                    os.close(self.wfd)
-                    os.close(self.rfd)
+                    _close_inherited_fds(keep=(req_r, ans_w))
                     _serve(req_r, ans_w, parent)
                 finally:
                     os._exit(0)

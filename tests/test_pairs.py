@@ -7,6 +7,7 @@ import re
 import shutil
 import subprocess
 import sys
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
@@ -124,14 +125,18 @@ def drives(tmp_path_factory) -> dict[str, Path]:
 
 def test_cli_refuses_swapped_duplicated_and_copied_drives(drives):
     cwd = drives["before"].parent
-    _one_line_error(_cli("identify", "after.h5", "before.h5", cwd=cwd), "swapped")
-    _one_line_error(_cli("diagnose", "after.h5", "before.h5", cwd=cwd), "swapped")
-    _one_line_error(_cli("diagnose", "before.h5", "before.h5", cwd=cwd),
-                    "both the before and the after")
-    _one_line_error(_cli("identify", "after.h5", "after_copy.h5", "--added-mass", "60",
-                         cwd=cwd), "same recording")
-    _one_line_error(_cli("diagnose", "before.h5", "after.h5", "--added-mass", "-60", cwd=cwd),
-                    "--added-mass -60", "more than 0")
+    cases = [
+        (("identify", "after.h5", "before.h5"), ("swapped",)),
+        (("diagnose", "after.h5", "before.h5"), ("swapped",)),
+        (("diagnose", "before.h5", "before.h5"), ("both the before and the after",)),
+        (("identify", "after.h5", "after_copy.h5", "--added-mass", "60"), ("same recording",)),
+        (("diagnose", "before.h5", "after.h5", "--added-mass", "-60"),
+         ("--added-mass -60", "more than 0")),
+    ]
+    with ThreadPoolExecutor(max_workers=3) as pool:  # subprocesses, a few at a time
+        runs = list(pool.map(lambda c: _cli(*c[0], cwd=cwd), cases))
+    for r, (_, words) in zip(runs, cases, strict=True):
+        _one_line_error(r, *words)
 
 
 def test_cli_flags_a_pair_whose_resonance_rose(drives):

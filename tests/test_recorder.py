@@ -6,11 +6,14 @@ Every test streams for a few seconds in real time; the file takes about 40 s in 
 from __future__ import annotations
 
 import contextlib
+import inspect
 import io
 import json
+import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 import uuid
 from pathlib import Path
@@ -186,29 +189,80 @@ def _start_record_cli(daq: VirtualDAQ, path: Path) -> subprocess.Popen:
     raise AssertionError("recorder did not start")
 
 
-def test_sigkill_keeps_counters_consistent_and_loses_half_a_second_at_most(tmp_path):
+class _SchedulingDelay:
+    """The longest a thread of this process waited past a 10 ms sleep while running: how
+    late the machine wakes a sleeping thread just now (the recorder's flusher is one)."""
+
+    def __init__(self) -> None:
+        self.max_s = 0.0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            t = time.perf_counter()
+            time.sleep(0.01)
+            self.max_s = max(self.max_s, time.perf_counter() - t - 0.01)
+
+    def __enter__(self) -> _SchedulingDelay:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._stop.set()
+        self._thread.join()
+
+
+def _fsync_s(folder: Path, n_bytes: int) -> float:
+    """Time to write ``n_bytes`` and fsync them in ``folder`` (a flush's disk part)."""
+    path = folder / "fsync-probe.bin"
+    t = time.perf_counter()
+    with open(path, "wb") as f:
+        f.write(os.urandom(n_bytes))
+        f.flush()
+        os.fsync(f.fileno())
+    took = time.perf_counter() - t
+    path.unlink()
+    return took
+
+
+def test_sigkill_keeps_counters_consistent_and_loses_what_was_not_flushed_only(tmp_path):
     """SIGKILL of `fielddiag record` at a random instant, twice, on a faulty link.
 
-    The file keeps every sample up to the last flush (0.4 s apart) bit for bit, and its
-    counters count exactly the frames, gaps and samples lost it holds."""
+    The file keeps every sample up to the last flush bit for bit, and its counters count
+    exactly the frames, gaps and samples lost it holds. What it holds at least: all the
+    test saw in the file just before the kill. What it may lose: the samples since the
+    start of the last completed flush, i.e. at most one flush interval (the recorder's,
+    0.4 s), one DAQ frame (its last sample waits for the frame), one flush's write to disk
+    and the scheduling delay of the flusher thread -- the last two measured here, on this
+    machine at this moment, instead of a fixed allowance that a loaded machine overran."""
+    flush_interval_s = inspect.signature(Recorder).parameters["flush_interval_s"].default
     rng = np.random.default_rng(7)
     for k in range(2):
         path = tmp_path / f"killed{k}.h5"
         with VirtualDAQ(
             noise_signals(40000, 3), sample_rate_hz=1000.0, corrupt_rate=2e-4, seed=k
-        ) as daq:
+        ) as daq, _SchedulingDelay() as delay:
             proc = _start_record_cli(daq, path)
             time.sleep(1.0 + rng.uniform(0.0, 1.0))
+            with SessionReader(path) as s:  # what the recorder had flushed so far
+                seen_end_s, seen_n = s.end_s, s.n_samples
             killed_at = time.time()
             proc.send_signal(signal.SIGKILL)
             proc.wait(10)
         assert proc.returncode == -signal.SIGKILL
+        frame_s = daq.samples_per_frame / daq.sample_rate_hz
         with SessionReader(path) as s:
             assert not s.closed_cleanly
             raw = _raw(s)
-            # flushes start every 0.4 s; what was flushed lags arrival by a block (20 ms)
+            assert s.n_samples >= seen_n and s.end_s >= seen_end_s  # flushed stays
+            # a flush writes what arrived since the last: time + 3 channels, 8 B each at most
+            disk_s = _fsync_s(tmp_path, int(flush_interval_s * daq.sample_rate_hz) * 4 * 8)
+            bound_s = flush_interval_s + frame_s + disk_s + delay.max_s
             lost_s = (killed_at - s.metadata.t0_unix_s) - s.end_s
-            assert lost_s <= 0.5
+            assert lost_s <= bound_s, (
+                f"lost {lost_s:.3f} s > flush interval {flush_interval_s} s + frame "
+                f"{frame_s:.3f} s + disk {disk_s:.3f} s + scheduling {delay.max_s:.3f} s")
             n = daq.samples_per_frame
             c = s.counters
             lost = sum(g.samples_lost for g in s.gaps)

@@ -302,3 +302,47 @@ def test_a_session_being_recorded_is_read_through_the_guard(tmp_path):
         w.close()
     info = untrusted_info(path)
     assert info["closed_cleanly"] and info["samples"] == 250
+
+
+_FORKED_WORKER_AND_SOCKETS = r"""
+import json, socket, sys
+from fielddiag import session_guard
+
+listener = socket.create_server(("127.0.0.1", 0))
+client = socket.create_connection(listener.getsockname())
+served, _ = listener.accept()  # a keep-alive connection the server holds when it forks
+verdict = session_guard.probe(sys.argv[1])
+forked = session_guard._worker is not None and session_guard._worker._proc is None
+port = listener.getsockname()[1]
+served.close()  # the server is done with the connection (a keep-alive timeout)
+listener.close()
+client.settimeout(5.0)
+try:
+    eof = client.recv(1) == b""
+except TimeoutError:
+    eof = False  # the worker's copy kept the connection open: no FIN reached the client
+try:
+    socket.create_connection(("127.0.0.1", port), timeout=5.0).close()
+    refused = False  # the worker's copy of the listening socket still queued connections
+except ConnectionRefusedError:
+    refused = True
+session_guard.stop_worker()
+print(json.dumps({"verdict": verdict, "forked": forked, "eof": eof, "refused": refused}))
+"""
+
+
+def test_a_forked_worker_keeps_none_of_the_parents_sockets(tmp_path, sources):
+    """The worker forked by a one-thread process (the dashboard does so when a page
+    opens a new session on its event-loop thread) closes the descriptors it inherits.
+    It used to keep the server's keep-alive connections: closed by the server, they stayed
+    open, the browser sent its next request into one of them and waited forever (the
+    dashboard stopped updating after a session page)."""
+    good = tmp_path / "good.h5"
+    good.write_bytes(sources["closed"])
+    out = subprocess.run([sys.executable, "-c", _FORKED_WORKER_AND_SOCKETS, str(good)],
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    answer = json.loads(out.stdout.strip().splitlines()[-1])
+    assert answer["verdict"] == "" and answer["forked"]
+    assert answer["eof"], "the client saw no end of the connection the server closed"
+    assert answer["refused"], "the closed listening socket still accepted connections"

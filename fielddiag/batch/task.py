@@ -157,7 +157,9 @@ def summarise_diagnose(data: dict[str, Any]) -> dict[str, Any]:
     """The catalog's summary of a diagnosis result (as JSON)."""
     out: dict[str, Any] = {
         "verdict": data.get("verdict", ""),
-        "findings": [f.get("effect", "") for f in data.get("findings", [])],
+        "findings": [f.get("effect", "") + (f"@{f.get('corner') or f.get('axle')}"
+                                            if data.get("mode") == "full_vehicle" else "")
+                     for f in data.get("findings", [])],
         "warnings": [w.get("kind", "") for w in data.get("warnings", [])],
     }
     aug, std = data.get("augmented_model") or {}, data.get("augmented_model_std") or {}
@@ -174,13 +176,34 @@ _CORRECTED = (("sprung_mass_kg", "sprung_mass", "kg"),
               ("suspension_damping_ns_per_m", "damping", "ns_per_m"))
 
 
+def _vehicle_pair(job: PairJob):
+    """The pair as full-vehicle recordings, or None for single-corner sessions."""
+    from fielddiag.vehicle.recording import is_full_vehicle_session, read_vehicle_recording
+
+    if not (is_full_vehicle_session(job.before) and is_full_vehicle_session(job.after)):
+        return None
+    return (read_vehicle_recording(job.before, label="before"),
+            read_vehicle_recording(job.after, label="after"))
+
+
 def _identify(job: PairJob) -> dict[str, Any]:
+    vehicle = _vehicle_pair(job)
+    if vehicle is not None:  # the added mass's place from the after session's metadata
+        from fielddiag.vehicle.identify import identify_vehicle
+
+        return {"mode": "full_vehicle", **identify_vehicle(
+            *vehicle, added_mass_kg=job.added_mass_kg).to_dict()}
     from fielddiag.identify import identify_sessions
 
     return identify_sessions(job.before, job.after, added_mass_kg=job.added_mass_kg).to_dict()
 
 
 def _diagnose(job: PairJob) -> dict[str, Any]:
+    vehicle = _vehicle_pair(job)
+    if vehicle is not None:
+        from fielddiag.vehicle.diagnose import diagnose_vehicle
+
+        return diagnose_vehicle(*vehicle, added_mass_kg=job.added_mass_kg).to_dict()
     from fielddiag.diagnose.engine import diagnose_sessions
 
     return diagnose_sessions([job.before, job.after], added_mass_kg=job.added_mass_kg).to_dict()

@@ -42,9 +42,13 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help=f"length of each recorded drive (real time; default 120, at least "
                         f"{MIN_DURATION_S:g})")
     p.add_argument("--added-mass", type=arg_number("--added-mass", "added_mass"),
-                   default=DEFAULT_ADDED_MASS_KG, metavar="KG",
+                   default=None, metavar="KG",
                    help=f"mass added on the body for the second drive (default "
-                        f"{DEFAULT_ADDED_MASS_KG:g} kg)")
+                        f"{DEFAULT_ADDED_MASS_KG:g} kg, 150 kg with --full-vehicle)")
+    p.add_argument("--full-vehicle", action="store_true",
+                   help="a whole car (eight accelerometers) with a worn rear-left damper and "
+                        "friction in the front-left strut: identify the body and the corners, "
+                        "diagnose each corner")
     p.add_argument("--seed", type=arg_int("--seed", 0, 2**32 - 1, "a random seed"),
                    default=1, help="random seed of the demo car's roads")
     p.add_argument("--no-serve", action="store_true", help="do not start the dashboard at the end")
@@ -135,6 +139,17 @@ def run(args: argparse.Namespace) -> int:
             f"--duration {args.duration:g}: give at least {MIN_DURATION_S:g} s; the "
             "identification needs 30 s of each drive, and a recording holds a little less "
             "than it ran for")
+    if args.full_vehicle:
+        from fielddiag.commands.demo_vehicle import DEFAULT_ADDED_MASS_KG as full_kg
+        from fielddiag.commands.demo_vehicle import run_full_vehicle
+
+        if args.added_mass is None:
+            args.added_mass = full_kg
+        run_dir = _new_run_dir(Path(args.out))
+        print(f"fielddiag demo --full-vehicle: writing into {run_dir}")
+        return run_full_vehicle(args, run_dir)
+    if args.added_mass is None:
+        args.added_mass = DEFAULT_ADDED_MASS_KG
     from fielddiag.identify import identify_sessions
     from fielddiag.plots import write_identify_plots
 

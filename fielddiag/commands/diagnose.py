@@ -3,6 +3,9 @@
 * ``fielddiag diagnose BEFORE.h5 AFTER.h5 --added-mass KG`` : a car corner, two drives.
 * ``fielddiag diagnose SESSION.h5`` : one drive (parameters per unit sprung mass), or a rig
   test (a session with a ``force`` channel and a ``displacement``/``acceleration`` one).
+* ``fielddiag diagnose BEFORE.h5 AFTER.h5 --added-mass KG --added-mass-at X_M,Y_M`` with
+  full-vehicle sessions (roles ``wheel_fl`` .. ``body_rr``): per-corner findings
+  (:mod:`fielddiag.vehicle.diagnose`).
 """
 
 from __future__ import annotations
@@ -43,6 +46,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="mass added on the body for the second drive (default: from the "
         "sessions' added_mass_kg)",
     )
+    from fielddiag.commands.identify import arg_position
+
+    p.add_argument("--added-mass-at", type=arg_position, metavar="X_M,Y_M", default=None,
+                   help="full vehicle: where the added mass sits, metres behind the front axle "
+                   "and left of the centre line (default: from the after session)")
+    p.add_argument("--validate", nargs="+", type=arg_existing_file(), metavar="OTHER.h5",
+                   default=None, help="full vehicle: drives of the same car on another "
+                   "manoeuvre to score the linear and the chosen model on")
     p.add_argument("--json", metavar="OUT.json", help="write the diagnosis as JSON")
     p.add_argument("--plots", metavar="DIR", help="write PNGs of the mismatch and the fits")
     p.set_defaults(func=run)
@@ -65,6 +76,14 @@ def run(args: argparse.Namespace) -> int:
         check_target(args.json, overwrite=True, flag="--json")
     if args.plots:
         check_folder(args.plots)
+    from fielddiag.vehicle.recording import is_full_vehicle_session
+
+    full = [is_full_vehicle_session(p) for p in paths]
+    if any(full):
+        return _run_vehicle(args, paths, full)
+    if args.added_mass_at is not None or args.validate:
+        raise FieldDiagError("--added-mass-at and --validate are for full-vehicle sessions "
+                             "(roles wheel_fl..body_rr); these are single-corner drives")
     is_rig = False
     if len(paths) == 1:
         with SessionReader(paths[0]) as s:
@@ -92,6 +111,36 @@ def run(args: argparse.Namespace) -> int:
         for png in write_plots(write_plots_into, args.plots, result):
             print(f"plot written: {png}")
     _print_summary(out)
+    if args.json:
+        write_text(args.json, json.dumps(out, indent=2) + "\n")
+        print(f"JSON written to {args.json}")
+    return 0
+
+
+def _run_vehicle(args: argparse.Namespace, paths: list[Path], full: list[bool]) -> int:
+    """The per-corner diagnosis of two full-vehicle sessions."""
+    from fielddiag.outputs import write_text
+    from fielddiag.vehicle.diagnose import diagnose_vehicle, format_vehicle_summary
+    from fielddiag.vehicle.recording import FULL_VEHICLE_ROLES, read_vehicle_recording
+
+    if len(paths) != 2 or not all(full):
+        raise FieldDiagError("a full-vehicle diagnosis needs two full-vehicle sessions (roles "
+                             "wheel_fl..body_rr): BEFORE.h5 AFTER.h5 --added-mass KG "
+                             "--added-mass-at X_M,Y_M")
+    if args.plots:
+        raise FieldDiagError("--plots is not available for full-vehicle sessions yet; leave it "
+                             "out")
+    validate_paths = [Path(p) for p in args.validate or []]
+    for p in (*paths, *validate_paths):
+        finite_session(p, FULL_VEHICLE_ROLES)
+    before = read_vehicle_recording(paths[0], label="before")
+    after = read_vehicle_recording(paths[1], label="after")
+    validate = [read_vehicle_recording(p, label="validate") for p in validate_paths]
+    result = diagnose_vehicle(before, after, added_mass_kg=args.added_mass,
+                              added_mass_at_m=args.added_mass_at, validate=validate,
+                              progress=lambda msg: print(f"  {msg}", flush=True))
+    out = result.to_dict()
+    print(format_vehicle_summary(out))
     if args.json:
         write_text(args.json, json.dumps(out, indent=2) + "\n")
         print(f"JSON written to {args.json}")

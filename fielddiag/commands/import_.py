@@ -62,7 +62,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="KG",
         help="mass added to the body for this drive",
     )
-    p.add_argument("--vehicle", default="", help="vehicle name")
+    p.add_argument("--vehicle", default="",
+                   help="vehicle name, or a vehicle file VEHICLE.json (wheelbase, tracks, "
+                   "body-sensor positions) for a full-vehicle import with all eight roles "
+                   "wheel_fl..body_rr, and speed, accel_long, accel_lat")
     p.add_argument("--corner", default="", help="corner, e.g. front-left")
     p.add_argument("--operator", default="", help="who recorded it")
     p.add_argument("--notes", default="", help="free text")
@@ -83,12 +86,16 @@ def run(args: argparse.Namespace) -> int:
             raise
         raise ImportFormatError(f"{exc}; give one of them with --format, or leave --format "
                                 "out to detect the format from the file") from None
+    vehicle_name, extra = args.vehicle, {}
+    if args.vehicle.lower().endswith(".json"):
+        vehicle_name, extra = _full_vehicle(args, fmt)
     meta = SessionMetadata(
-        vehicle=args.vehicle,
+        vehicle=vehicle_name,
         corner=args.corner,
         operator=args.operator,
         added_mass_kg=args.added_mass,
         notes=args.notes,
+        extra=extra,
     )
     # the session is written under a temporary name beside the output and moved into place
     # only when complete: a failed import (bad row, full disk) leaves nothing behind
@@ -97,3 +104,21 @@ def run(args: argparse.Namespace) -> int:
                     **options_from_args(fmt, args))
     print(f"wrote {args.output}")
     return 0
+
+
+def _full_vehicle(args: argparse.Namespace, fmt: str) -> tuple[str, dict]:
+    """(vehicle name, metadata extra) of a full-vehicle import from ``--vehicle FILE.json``."""
+    from fielddiag.io.csv_import import parse_role_args
+    from fielddiag.vehicle.geometry import load_vehicle
+    from fielddiag.vehicle.recording import FULL_VEHICLE_ROLES
+
+    geometry = load_vehicle(args.vehicle)
+    if fmt == "csv":
+        roles = parse_role_args(args.role)
+        missing = [r for r in FULL_VEHICLE_ROLES if r not in roles]
+        if missing:
+            raise ImportFormatError(
+                f"a full-vehicle import (--vehicle {Path(args.vehicle).name}) needs all eight "
+                f"accelerometer roles; missing {', '.join(missing)} (give --role "
+                f"{missing[0]}=COLUMN ...)")
+    return Path(args.vehicle).stem, {"vehicle": geometry.to_dict(), "full_vehicle": True}

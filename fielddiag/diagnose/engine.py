@@ -67,6 +67,7 @@ from fielddiag.diagnose.selection import (
     paired_block_t,
     select_model,
 )
+from fielddiag.diagnose.shape import dahl_state, fit_shape_model
 from fielddiag.drive import CornerDrive, read_corner_drive
 from fielddiag.effects import EFFECTS, ForceModel, diagnosis_effects, get_effect, split_shape
 from fielddiag.effects.base import TRAVEL_BOUND_M
@@ -322,7 +323,7 @@ def _equation_error_fit(
     loaded = [k for k, p in enumerate(prepared) if p.fit.added_mass_kg != 0.0] if absolute else []
 
     def stack(part: str):
-        cols = {"r": [], "v": [], "x": [], "a": [], "dm": [], "sess": []}
+        cols = {"r": [], "v": [], "x": [], "a": [], "dm": [], "sess": [], "fs": []}
         for k, p in enumerate(prepared):
             d = getattr(p, part)
             r, rdot, x2, a2 = _states(d)
@@ -332,6 +333,7 @@ def _equation_error_fit(
             cols["a"].append(a2)
             cols["dm"].append(np.full(r.size, d.added_mass_kg))
             cols["sess"].append(np.full(r.size, k))
+            cols["fs"].append(np.full(r.size, d.sample_rate_hz))
         return {key: np.concatenate(v) for key, v in cols.items()}
 
     fit, val = stack("fit"), stack("val")
@@ -371,7 +373,8 @@ def _equation_error_fit(
         # shrinks the mass to shrink the residual.)
         th, m, r0 = split(z)
         off = r0[d["sess"]]
-        f, dst, dth = model.force(d["r"] + off, d["v"], d["x"], th)
+        f, dst, dth = _path_force(model, d["r"] + off, d["v"], d["x"], th, d["sess"],
+                                  d["fs"])
         g = GRAVITY if absolute else 0.0
         mt = m + d["dm"]
         e = d["a"] + (d["dm"] * g - f) / mt
@@ -399,6 +402,25 @@ def _equation_error_fit(
     return _EquationErrorFit(values, residual(sol.x, val))
 
 
+def _path_force(model: ForceModel, r: np.ndarray, rdot: np.ndarray, x2: np.ndarray,
+                th: np.ndarray, session: np.ndarray, rate_hz: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The model's force on stacked drives; internal states integrated per drive (from
+    rest at its first sample)."""
+    if model.n_states == 0:
+        return model.force(r, rdot, x2, th)
+    f = np.empty(r.size)
+    dst = np.empty((r.size, 3))
+    dth = np.empty((r.size, model.n_params))
+    bounds = np.flatnonzero(np.diff(session)) + 1
+    for sl in np.split(np.arange(r.size), bounds):
+        if sl.size == 0:
+            continue
+        a, b, c, _ = model.force_along_path(r[sl], rdot[sl], x2[sl], th, float(rate_hz[sl[0]]))
+        f[sl], dst[sl], dth[sl] = a, b, c
+    return f, dst, dth
+
+
 # ----------------------------------------------------------------------------- result
 @dataclass
 class Diagnosis:
@@ -421,6 +443,7 @@ class Diagnosis:
     residual_psd: dict[str, list[float]] = field(default_factory=dict)
     ride_height: dict | None = None  # passive sag vs restored, when an effect acts on position
     linear_inadequate: str | None = None  # words when the linear model is hopeless
+    loops: list[dict] = field(default_factory=list)  # restoring force on held-out data
 
     @property
     def verdict(self) -> str:
@@ -489,6 +512,12 @@ class Diagnosis:
             ``residual_psd``: ``freq_hz``, ``psd``, ``noise_psd``; ``departure_map``:
             bin edges in ``r`` [m] and ``rdot`` [m/s], mean force departure [N] and
             counts, or None.
+            ``restoring_force``: per drive the held-out suspension travel ``r_m`` [m]
+            (from the unloaded ride height, as the linear model places it) against the
+            restoring force ``measured`` (mass times acceleration plus the added weight),
+            ``linear`` and ``augmented`` (the models' forces; the augmented one shifted by
+            the difference its own mass makes to the measured force, so that each
+            curve's miss is that model's residual) [N, or N/kg per unit mass].
         """
         fits = []
         aug_runs = {r[0].name: r for r in self.chosen.runs}
@@ -516,7 +545,8 @@ class Diagnosis:
                 ],
                 "count": self.departure.count.tolist(),
             }
-        return {"fit": fits, "residual_psd": self.residual_psd, "departure_map": dmap}
+        return {"fit": fits, "residual_psd": self.residual_psd, "departure_map": dmap,
+                "restoring_force": self.loops}
 
     def _where(self) -> dict:
         return {
@@ -832,7 +862,7 @@ def _model_static_offset(model: ForceModel, th: np.ndarray, load_n: float) -> fl
         return 0.0
 
     def net(r: float) -> float:
-        return float(model.force(r, 0.0, r, th)[0][0]) - load_n
+        return model.static_force(r, r, th) - load_n
 
     try:
         return float(brentq(net, -0.5, 0.5, xtol=1e-7))
@@ -855,12 +885,13 @@ def _departure(
     exclude: Callable[[Drive, np.ndarray], np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Equation-error departure of the fitted model on the measured states, all data
-    (held-out samples where ``exclude(drive, time_s)`` is True left out)."""
+    (held-out samples where ``exclude(drive, time_s)`` is True left out): travel, speed,
+    departure, held-out flag and a segment number per sample (drive and part)."""
     model = fit.candidate.extra["model"]
     vals = fit.candidate.values
     th = np.array([vals.get(k, 0.0) for k in model.param_keys])
     mass = vals.get("body_mass_kg", 1.0)
-    rs, vs, ds, is_val = [], [], [], []
+    rs, vs, ds, is_val, segs = [], [], [], [], []
     for p in prepared:
         for part, flag in ((p.fit, False), (p.val, True)):
             if exclude is not None and flag:  # held-out samples a data problem corrupts
@@ -870,12 +901,20 @@ def _departure(
             g = GRAVITY if "body_mass_kg" in vals else 0.0
             load = 0.0 if part.ride_height_restored else part.added_mass_kg * g
             r = r + _model_static_offset(model, th, load)
-            f, _, _ = model.force(r, rdot, x2, th)
+            f = model.force_along_path(r, rdot, x2, th, part.sample_rate_hz,
+                                       state_jacobian=False)[0]
             rs.append(r)
             vs.append(rdot)
             ds.append((mass + part.added_mass_kg) * a2 + part.added_mass_kg * GRAVITY - f)
             is_val.append(np.full(r.size, flag))
-    return np.concatenate(rs), np.concatenate(vs), np.concatenate(ds), np.concatenate(is_val)
+            segs.append(np.full(r.size, len(segs)))
+    return (np.concatenate(rs), np.concatenate(vs), np.concatenate(ds),
+            np.concatenate(is_val), np.concatenate(segs))
+
+
+#: An effect with internal states gets the full (grey-box) fit only where its equation-
+#: error signature beats the linear model on held-out data by this paired-block t.
+STATEFUL_SCREEN_T = 1.0
 
 
 #: Structure left in the chosen model's residual is reported as ``unexplained`` only when
@@ -892,39 +931,90 @@ def _unexplained(
 ) -> tuple[dict | None, DepartureMap]:
     """Force left that depends on (r, rdot) but that the chosen model does not describe
     (judged on held-out samples outside ``exclude``: what a data problem corrupts)."""
-    r, v, dep, is_val = _departure(fit, prepared, coupling, exclude)
-    dmap = departure_map(r[~is_val], v[~is_val], dep[~is_val], bins=12)
-    i = np.clip(np.searchsorted(dmap.r_edges_m, r[is_val]) - 1, 0, dmap.mean.shape[0] - 1)
-    j = np.clip(np.searchsorted(dmap.rdot_edges_mps, v[is_val]) - 1, 0, dmap.mean.shape[1] - 1)
-    ok = dmap.count[i, j] >= 30
-    pred = np.where(ok, np.nan_to_num(dmap.mean[i, j]), 0.0)
-    e = dep[is_val] - np.mean(dep[~is_val])
-    t = paired_block_t(e, e - pred)
-    gain = 1.0 - float(np.mean((e - pred) ** 2) / np.mean(e**2))
+    r, v, dep, is_val, segments = _departure(fit, prepared, coupling, exclude)
     full_map = departure_map(r, v, dep, bins=12)
+    vals = fit.candidate.values
+    mass = vals.get("body_mass_kg")
+    # in per-unit-mass mode the departure is in N/kg: the words then speak of shares
+    k = vals.get("linear_spring.suspension_stiffness_n_per_m")
+    c = vals.get("linear_damper.suspension_damping_ns_per_m")
+    shape = fit_shape_model(r, v, dep, is_val, prepared[0].fit.sample_rate_hz, segments,
+                            stiffness_n_per_m=k, damping_ns_per_m=c)
+    e = dep[is_val] - np.mean(dep[~is_val])
+    pred = shape.surface(r[is_val], v[is_val])
+    if shape.hysteretic_force_n:
+        pred = pred + shape.hysteretic_force_n * dahl_state(
+            v, prepared[0].fit.sample_rate_hz, shape.yield_displacement_m, segments)[is_val]
+    pred = pred - np.mean(pred)
+    e = e - np.mean(e)
+    t = paired_block_t(e, e - pred)
+    gain = shape.held_out_gain
     share = gain
     if baseline is not None and baseline is not fit:
         share = gain * fit.candidate.mse_validation / baseline.candidate.mse_validation
     if gain > 0:
         say(f"  structure left in the residual: {100 * gain:.1f} % of it (t = {t:.1f}), "
             f"{100 * share:.1f} % of the linear model's misfit")
-    else:  # the map of the fitted part predicts the held-out residual no better than zero
+    else:  # the shape fitted on the fit part predicts the held-out residual no better
         say("  structure left in the residual: none found")
     if t < 4.0 or gain < 0.08 or share < UNEXPLAINED_MIN_SHARE_OF_LINEAR_MISFIT:
         return None, full_map
-    reg = dmap.region()
+    reg = departure_map(r[~is_val], v[~is_val], dep[~is_val], bins=12).region()
     names = ", ".join(EFFECTS[n].description for n in known if n in EFFECTS)
+    unit = "N" if mass else "N/kg"
+    words = "; ".join(shape.description)
     return {
         "effect": "unexplained",
         "confidence": float(min(1.0, 2.0 * gain)),
         "parameters": {},
         "where": {"region": reg},
+        "shape_description": shape.description,
+        "model": {**shape.to_dict(), "force_unit": unit},
+        "held_out_gain": gain,
         "explanation": (
             f"{100 * gain:.0f} % of the force the model leaves unexplained depends on "
             f"suspension travel and speed in a way none of the known effects ({names}) "
-            "describes; see the departure map for where it acts"
+            f"describes. Its shape: {words}. A smooth model of that shape is attached "
+            "(it predicts the held-out data that much better); see the departure map for "
+            "where it acts"
         ),
     }, full_map
+
+
+def _model_force_on(fit: _Fit, part: GreyBoxData) -> tuple[np.ndarray, np.ndarray,
+                                                            np.ndarray]:
+    """(travel from the unloaded ride height, the measured restoring force, the model's
+    force) of a fitted model on one part of a drive (the measured states)."""
+    model = fit.candidate.extra["model"]
+    vals = fit.candidate.values
+    th = np.array([vals.get(k, 0.0) for k in model.param_keys])
+    mass = vals.get("body_mass_kg", 1.0)
+    g = GRAVITY if "body_mass_kg" in vals else 0.0
+    r, rdot, x2, a2 = _states(part)
+    load = 0.0 if part.ride_height_restored else part.added_mass_kg * g
+    r = r + _model_static_offset(model, th, load)
+    f = model.force_along_path(r, rdot, x2, th, part.sample_rate_hz, state_jacobian=False)[0]
+    measured = (mass + part.added_mass_kg) * a2 + part.added_mass_kg * g
+    return r, measured, f
+
+
+def _restoring_loops(base: _Fit, chosen: _Fit, prepared: Sequence[_Prepared],
+                     max_points: int = 1500) -> list[dict]:
+    """Per drive, the held-out restoring force against travel: measured, linear model and
+    the model with the findings (see :meth:`Diagnosis.plot_data`)."""
+    out = []
+    aug_prepared = {p.drive.label: p for p in chosen.prepared}
+    for p in prepared:
+        r, measured, lin = _model_force_on(base, p.val)
+        q = aug_prepared.get(p.drive.label, p)
+        r_a, measured_a, aug = _model_force_on(chosen, q.val)
+        step = max(1, r.size // max_points)
+        n = min(r.size, r_a.size)
+        out.append({"session": p.drive.label, "r_m": r[:n:step].tolist(),
+                    "measured": measured[:n:step].tolist(), "linear": lin[:n:step].tolist(),
+                    "augmented": (aug[:n:step] + (measured[:n:step] - measured_a[:n:step])
+                                  ).tolist()})
+    return out
 
 
 def _band_and_rate(
@@ -1059,19 +1149,28 @@ def diagnose_drives(
     say("testing each effect against the residual's signature")
     absolute = mode == "pair"
     ee_base = _equation_error_fit((), prepared, coupling, absolute)
-    combos = [(e,) for e in effects] + list(itertools.combinations(effects, 2))
     screening: dict[str, dict[str, float]] = {}
     ee_fits: dict[tuple[str, ...], _EquationErrorFit] = {}
     mse_b = float(np.mean(ee_base.residual_validation**2))
-    for combo in combos:
+
+    def screen(combo: tuple[str, ...]) -> None:
+        """The equation-error fit of ``combo``: its signature and the grey fit's start.
+        Every single effect is screened; a pair only when it is fitted (the library's
+        pairs grow as its square)."""
+        start = dict(ee_base.values)
+        for e in combo:
+            start.update(ee_fits[(e,)].values if (e,) in ee_fits else {})
         try:
-            ee = _equation_error_fit(combo, prepared, coupling, absolute, ee_base.values)
+            ee = _equation_error_fit(combo, prepared, coupling, absolute, start)
         except (ValueError, np.linalg.LinAlgError):
-            continue
+            return
         ee_fits[combo] = ee
         gain = 1.0 - float(np.mean(ee.residual_validation**2)) / mse_b
         t = paired_block_t(ee_base.residual_validation, ee.residual_validation)
         screening["+".join(combo)] = {"gain": gain, "t": t}
+
+    for e in effects:
+        screen((e,))
     fits = [base]
 
     def grey(combo: tuple[str, ...], on: Sequence[_Prepared] = prepared,
@@ -1081,6 +1180,8 @@ def diagnose_drives(
         say(f"fitting {what}" + (f" to drives corrected for a {_DATA_LABEL[data.kind]}"
                                  if data is not None else ""))
         if start is None:
+            if len(combo) > 1 and combo not in ee_fits:
+                screen(combo)
             start = ee_fits[combo].values if combo in ee_fits else _initial_from(base)
         try:
             return _grey_fit(combo, on, coupling, start, 2, mass_bounds, data)
@@ -1095,6 +1196,14 @@ def diagnose_drives(
     restored_on = _with_ride_height(prepared, True)
     singles = []
     for e in effects:
+        sig = screening.get(e)
+        if EFFECTS[e].n_states and (sig is None or sig["t"] < STATEFUL_SCREEN_T):
+            # an effect with internal states costs one simulation per parameter and step
+            # in the full fit: it is fitted where its signature predicts held-out data
+            # better than the linear model at all
+            say(f"  {e}: its signature does not improve held-out data (t = "
+                f"{sig['t'] if sig else float('nan'):.1f}); not fitted")
+            continue
         f = grey((e,))
         if f is None:
             continue
@@ -1234,10 +1343,12 @@ def diagnose_drives(
                     "the values of the linear model are not reliable: the clipped readings "
                     "corrupt most of the recording")
     # where the restoring force departs from the *linear* surface (what the findings fix)
-    r, v, dep, _ = _departure(base, prepared, coupling)
+    r, v, dep, _, _ = _departure(base, prepared, coupling)
     dmap = departure_map(r, v, dep, bins=12)
     region = dmap.region()
+    loops = _restoring_loops(base, chosen, prepared)
     return Diagnosis(
+        loops=loops,
         mode=mode,
         drives=drives,
         band_hz=band,
@@ -1405,7 +1516,7 @@ def _acts_on_position(fit: _Fit) -> bool:
     vals = fit.candidate.values
     th = np.array([vals.get(k, 0.0) for k in model.param_keys])
     r = np.linspace(-TRAVEL_BOUND_M, TRAVEL_BOUND_M, 41)
-    f = np.array([model.force(x, 0.0, x, th)[0][0] for x in r])
+    f = np.array([model.static_force(x, x, th) for x in r])
     line = np.polyval(np.polyfit(r, f, 1), r)
     return bool(np.max(np.abs(f - line)) > 1e-3 * max(np.max(np.abs(f)), 1e-9))
 

@@ -24,13 +24,17 @@ from fielddiag.effects.base import (
     register_effect,
     unregister_effect,
 )
+from fielddiag.effects.bouc_wen import BoucWen
 from fielddiag.effects.bump_stop import BumpStop
 from fielddiag.effects.coulomb_friction import CoulombFriction
 from fielddiag.effects.cubic_stiffness import CubicStiffness
+from fielddiag.effects.digressive_damping import DigressiveDamping
 from fielddiag.effects.hysteretic_spring import HystereticSpring
 from fielddiag.effects.linear import CouplingSpring, LinearDamper, LinearSpring
 from fielddiag.effects.model import ForceModel, linear_model, model_from_sim, split_shape
 from fielddiag.effects.quadratic_damping import QuadraticDamping
+from fielddiag.effects.series_top_mount import SeriesTopMount
+from fielddiag.effects.travel_dependent_damping import TravelDependentDamping
 
 _INFRASTRUCTURE = {"base", "compose", "model"}
 
@@ -53,10 +57,12 @@ __all__ = [
     "RATE_BOUND_MPS",
     "TRAVEL_BOUND_M",
     "AsymmetricDamping",
+    "BoucWen",
     "BumpStop",
     "CoulombFriction",
     "CouplingSpring",
     "CubicStiffness",
+    "DigressiveDamping",
     "Effect",
     "ForceModel",
     "HystereticSpring",
@@ -64,6 +70,8 @@ __all__ = [
     "LinearSpring",
     "ParamSpec",
     "QuadraticDamping",
+    "SeriesTopMount",
+    "TravelDependentDamping",
     "diagnosis_effects",
     "get_effect",
     "linear_model",

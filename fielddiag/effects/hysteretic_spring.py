@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 from numba import njit
@@ -32,14 +32,16 @@ class HystereticSpring(Effect):
     """
 
     name = "hysteretic_spring"
+    diagnosable = True
+    diagnosis_rank = 50
     description = "hysteresis (Dahl) in the suspension"
     n_states = 1
     linear_in_params = False
     params = (
         ParamSpec("hysteretic_stiffness_n_per_m", "N/m", 0.0, INF, 2e4, True,
                   "hysteretic stiffness", "drive over small ripples (many small reversals)",
-                  valid_low=0.0, valid_strict=True),
-        ParamSpec("yield_displacement_m", "m", 0.0, INF, 2e-3, False,
+                  valid_low=0.0, valid_strict=True, significant=True),
+        ParamSpec("yield_displacement_m", "m", 5e-5, 0.05, 2e-3, False,
                   "hysteresis yield displacement",
                   "drive over small ripples (many small reversals)",
                   valid_low=0.0, valid_strict=True),
@@ -78,3 +80,44 @@ class HystereticSpring(Effect):
             ``(k_h, 0, RATE_BOUND_MPS / z_y)``: the rate is that of the state ``z``.
         """
         return values[0], 0.0, RATE_BOUND_MPS / values[1]
+
+    def start_values(self, r_m, start):
+        """Start values of a screening fit: a yield travel of 5 % of the travel's spread.
+
+        Parameters
+        ----------
+        r_m : ndarray
+            Measured suspension extension [m].
+        start : mapping
+            Values already known by model key (unused).
+
+        Returns
+        -------
+        dict
+            ``yield_displacement_m`` [m].
+        """
+        spread = float(np.std(r_m)) if np.size(r_m) else 0.0
+        return {"yield_displacement_m": float(np.clip(0.05 * spread, 2e-4, 0.01))}
+
+    def explain(self, params: Mapping[str, float], per: str = "", hidden: str = "") -> str:
+        """A sentence a technician can act on: the loop's height and its yield travel.
+
+        Parameters
+        ----------
+        params : mapping
+            Fitted physical parameters by name (``_per_kg`` names in per-unit-mass mode).
+        per : str
+            Unit suffix for per-unit-mass values (`` per kg of sprung mass``) or "".
+        hidden : str
+            How the linear fit distorted its parameters to absorb the effect, or "".
+
+        Returns
+        -------
+        str
+        """
+        k = params.get("hysteretic_stiffness_n_per_m",
+                       params.get("hysteretic_stiffness_n_per_m_per_kg", math.nan))
+        x = params.get("yield_displacement_m", math.nan)
+        return (f"the suspension force lags its travel (Dahl hysteresis): after each reversal "
+                f"it builds up with {k:.3g} N/m{per} over about {1e3 * x:.2g} mm to "
+                f"{k * x:.3g} N{per}; typical of worn bushings or a binding strut{hidden}")

@@ -24,6 +24,16 @@ from fielddiag.errors import FieldDiagError
 
 __all__ = ["ForceModel", "linear_model", "model_from_sim", "split_shape"]
 
+#: Largest product of an internal state's rate [1/s] and the RK4 step [s] (see
+#: :meth:`ForceModel.state_substeps`).
+STATE_RATE_STEP = 1.0
+#: Fastest state rate integrated [1/s]: a fit that wanders to a faster one (a yield travel
+#: of microns, a top mount far stiffer than its damper) is integrated as if at this rate.
+MAX_STATE_RATE_PER_S = 2e4
+#: Internal states are held within +-STATE_LIMIT (far beyond any physical state: a
+#: normalised hysteresis lies in [-1, 1], a deflection within metres).
+STATE_LIMIT = 1e3
+
 
 def _force_many(r, rd, x2, theta, consts):  # pragma: no cover - numba template
     n = r.shape[0]
@@ -107,6 +117,9 @@ def _force_path_z(r, rd, x2, z0, theta, consts, h, nsub):  # pragma: no cover - 
             model_force_z(rb, vb, xb, zt, theta, consts, scratch, k4)
             for j in range(nz):
                 z[j] += hs / 6.0 * (k1[j] + 2.0 * (k2[j] + k3[j]) + k4[j])
+                # a fit exploring a state rate beyond MAX_STATE_RATE_PER_S: keep it finite
+                if not abs(z[j]) <= STATE_LIMIT:
+                    z[j] = STATE_LIMIT if z[j] > 0 else -STATE_LIMIT
     return f, ds, dp, zs
 
 
@@ -437,9 +450,12 @@ class ForceModel:
         Returns
         -------
         int
-            ``ceil(step_s * rate / 0.5)`` with ``rate`` the fastest state rate the effects
-            report (:meth:`~fielddiag.effects.base.Effect.speed_bounds`, scaled from
-            :data:`~fielddiag.effects.base.RATE_BOUND_MPS` to ``max_rate_mps``), 1 to 200.
+            ``ceil(step_s * rate / STATE_RATE_STEP)`` with ``rate`` the fastest state rate
+            the effects report (:meth:`~fielddiag.effects.base.Effect.speed_bounds`,
+            scaled from :data:`~fielddiag.effects.base.RATE_BOUND_MPS` to
+            ``max_rate_mps``; at most :data:`MAX_STATE_RATE_PER_S`). RK4 is stable to a
+            step of 2.8 / rate; the
+            states relax towards their saturation, so 1 / rate keeps them accurate.
         """
         from fielddiag.effects.base import RATE_BOUND_MPS
 
@@ -450,9 +466,8 @@ class ForceModel:
                 q = float(t.speed_bounds(np.abs(theta[p0:p1]))[2])
                 rate = max(rate, q * max(max_rate_mps, 1e-6) / RATE_BOUND_MPS)
             p0 = p1
-        if not np.isfinite(rate):
-            return 200
-        return int(min(200, max(1, math.ceil(step_s * rate / 0.5))))
+        rate = min(rate, MAX_STATE_RATE_PER_S) if np.isfinite(rate) else MAX_STATE_RATE_PER_S
+        return int(max(1, math.ceil(step_s * rate / STATE_RATE_STEP)))
 
     def force_along_path(
         self,

@@ -20,15 +20,18 @@ def _quadratic_damping(r, rd, x2, p, c, dp):  # pragma: no cover - compiled
 class QuadraticDamping(Effect):
     """Quadratic (orifice) damping: force on the body ``-c_q rdot |rdot|``.
 
-    Simulated and fittable; not yet among the diagnosis's default candidates (the
-    scenario catalogue uses it as the effect outside the library).
+    Added to the linear damper: a damper whose force grows with the square of the speed
+    (flow through a fixed orifice, no valve).
     """
 
     name = "quadratic_damping"
+    diagnosable = True
+    diagnosis_rank = 42
     description = "quadratic (orifice) damping"
     params = (
         ParamSpec("damping_ns2_per_m2", "N s^2/m^2", 0.0, INF, 500.0, True,
-                  "quadratic damping", "drive over sharp bumps (fast suspension strokes)"),
+                  "quadratic damping", "drive over sharp bumps (fast suspension strokes)",
+                  significant=True),
     )
     kernel = _quadratic_damping
 

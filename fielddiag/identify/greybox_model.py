@@ -33,6 +33,14 @@ _NUISANCE_SCALE = np.array([1e-3, 1e-2])
 # ---------------------------------------------------------------------------------------
 
 
+#: How long an initial body offset or velocity is felt [s]: a passenger car body's free
+#: response (damping ratio >= 0.2 at >= 1 Hz) decays as exp(-1.26 t), to 3e-6 in 10 s.
+#: Models with internal states take the derivatives with respect to them over this span
+#: only (an approximation of the Jacobian, not of the residual: the fit's result is the
+#: same, a very lightly damped body converges a little slower).
+INITIAL_STATE_MEMORY_S = 10.0
+
+
 def _band_sos(band_hz: tuple[float, float] | None, fs: float, order: int = 4) -> np.ndarray | None:
     if band_hz is None:
         return None
@@ -137,6 +145,7 @@ class GreyBoxProblem:
         #: Simulation horizon [s] of a continuation stage (None: the whole record).
         self.horizon_s: float | None = None
         self._prep = [self._prepare(d) for d in self.data]
+        self._equilibria: dict[tuple, tuple[float, np.ndarray]] = {}
 
     # ------------------------------------------------------------------ data
     def _prepare(self, d: GreyBoxData) -> _Prepared:
@@ -317,25 +326,39 @@ class GreyBoxProblem:
         m_tot, load = self._mass_for_unit(d)
         return theta_u, m_tot, load
 
-    def _simulate_session_z(self, s: int, z: np.ndarray) -> np.ndarray:
-        """Body acceleration of session ``s`` (unfiltered, untrimmed) for a model with
-        internal states."""
+    def _simulate_session_z(self, s: int, z: np.ndarray, n_max: int | None = None
+                            ) -> np.ndarray:
+        """Body acceleration of session ``s`` (unfiltered, untrimmed; its first ``n_max``
+        samples if given) for a model with internal states."""
         theta_u, mass, nuis = self.unpack(z)
         pr = self._prep[s]
         d = pr.data
         theta, m_tot, load = self._session_setup(d, theta_u, mass)
-        x_eq, z_eq = static_equilibrium(self.model, theta, float(d.wheel_disp_m[0]), load)
+        key = (theta.tobytes(), float(d.wheel_disp_m[0]), load)
+        eq = self._equilibria.get(key)
+        if eq is None:
+            eq = static_equilibrium(self.model, theta, float(d.wheel_disp_m[0]), load)
+            if len(self._equilibria) > 256:
+                self._equilibria.clear()
+            self._equilibria[key] = eq
+        x_eq, z_eq = eq
         h = 1.0 / d.sample_rate_hz
-        rate = float(np.max(np.abs(np.diff(d.wheel_disp_m)))) / h * 4.0 if d.n_samples > 1 \
-            else 0.0
+        # the states' rates scale with the suspension's rate: measured where the body's
+        # motion is known, else bounded by twice the wheel's
+        if d.body_vel_mps is not None:
+            rate = float(np.max(np.abs(d.body_vel_mps - d.wheel_vel_mps)))
+        else:
+            rate = 2.0 * float(np.max(np.abs(d.wheel_vel_mps)))
         nsub = max(self.substeps, self.model.state_substeps(theta, rate, h))
         every = 0
         if self.horizon_s is not None and d.body_disp_m is not None:
             every = max(1, int(round(self.horizon_s * d.sample_rate_hz)))
         r_static = x_eq - float(d.wheel_disp_m[0]) if d.band_hz is not None else 0.0
         self.evaluations += 1
+        n = d.n_samples if n_max is None else min(int(n_max), d.n_samples)
         return _kernels(self.model)._simulate_z(
-            d.wheel_disp_m, d.wheel_vel_mps, h, nsub, theta, self.model.constant_values(),
+            d.wheel_disp_m[:n], d.wheel_vel_mps[:n], h, nsub, theta,
+            self.model.constant_values(),
             m_tot, load, x_eq, np.ascontiguousarray(z_eq, dtype=float), nuis[s, 0],
             nuis[s, 1], every, d.body_disp_m if every else _EMPTY,
             d.body_vel_mps if every else _EMPTY, r_static)
@@ -351,16 +374,21 @@ class GreyBoxProblem:
             jz = None
             if sens:
                 jz = np.zeros((a.size, self.n_fit))
-                cols = list(range(self.nuis_index))
-                if self.fit_initial_state:
-                    cols += [self.nuis_index + 2 * s, self.nuis_index + 2 * s + 1]
-                for j in cols:
-                    step = 1e-6 * max(abs(z[j]), 1e-3 if j >= self.nuis_index else 1e-12)
-                    if z[j] == 0 and j < self.nuis_index:
-                        step = 1e-9
+                for j in range(self.nuis_index):
+                    step = 1e-6 * abs(z[j]) if z[j] else 1e-9
                     zz = z.copy()
                     zz[j] += step
                     jz[:, j] = (self._simulate_session_z(s, zz) - a) / step
+                if self.fit_initial_state:
+                    # the initial offset and velocity act through the body's free response
+                    # only, gone after INITIAL_STATE_MEMORY_S
+                    n0 = int(INITIAL_STATE_MEMORY_S * pr.data.sample_rate_hz)
+                    for j in (self.nuis_index + 2 * s, self.nuis_index + 2 * s + 1):
+                        step = 1e-6 * max(abs(z[j]), 1e-3)
+                        zz = z.copy()
+                        zz[j] += step
+                        part = (self._simulate_session_z(s, zz, n0) - a[:n0]) / step
+                        jz[: part.size, j] = part
             if pr.sos is not None:
                 a = signal.sosfiltfilt(pr.sos, a)
                 if jz is not None:

@@ -25,6 +25,7 @@ from numba import njit
 
 from fielddiag.effects import ForceModel
 from fielddiag.effects.compose import model_force, model_force_z
+from fielddiag.effects.model import STATE_LIMIT
 from fielddiag.identify.greybox_data import GRAVITY_MPS2
 
 __all__ = ["simulate_body"]
@@ -253,6 +254,8 @@ def _simulate_z(x1, v1, h, nsub, theta, consts, mass, load, x_eq, z_eq, dx0, dv0
             v += hs / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
             for j in range(nz):
                 z[j] += hs / 6.0 * (k1[j] + 2.0 * (k2[j] + k3[j]) + k4[j])
+                if not abs(z[j]) <= STATE_LIMIT:  # a fit exploring an unstable state rate
+                    z[j] = STATE_LIMIT if z[j] > 0 else -STATE_LIMIT
     return a_out
 
 

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fielddiag.channels import ChannelSpec, SessionMetadata, SignalSpec
+from fielddiag.channels import CORNERS, ChannelSpec, SessionMetadata, SignalSpec
 from fielddiag.errors import ImportFormatError
 from fielddiag.session import unique_name, write_session
 from fielddiag.units import QUANTITIES, factor_to_si
@@ -44,6 +44,10 @@ KNOWN_ROLES = {
     "force": ("N", "plain"),
     "displacement": ("m", "plain"),
     "speed": ("m/s", "speed"),
+    # full vehicle: the eight corner accelerometers and the car's accelerations (signals)
+    **{f"{k}_{c}": ("m/s2", "accel") for k in ("wheel", "body") for c in CORNERS},
+    "accel_long": ("m/s2", "accel_signal"),
+    "accel_lat": ("m/s2", "accel_signal"),
 }
 
 
@@ -320,6 +324,10 @@ def import_csv(
         if kind == "speed":
             spec = SignalSpec("vehicle_speed", unit="m/s", source="csv", message=col, role="speed")
             signals[spec] = (t, values * factor_to_si(options.speed_unit, "speed"))
+            continue
+        if kind == "accel_signal":
+            spec = SignalSpec(role, unit="m/s2", source="csv", message=col, role=role)
+            signals[spec] = (t, values * factor_to_si(options.accel_unit, "acceleration"))
             continue
         if kind == "accel":
             values = values * factor_to_si(options.accel_unit, "acceleration")

@@ -291,6 +291,11 @@ def _summary_text(result: Mapping[str, Any]) -> str:
 
 def render_identification(result: Mapping[str, Any]) -> None:
     """Transmissibility before/after with coherence, restoring-force surface, parameters."""
+    from fielddiag.web.vehicle_view import is_full_vehicle_result, render_vehicle_identification
+
+    if is_full_vehicle_result(result):
+        render_vehicle_identification(result)
+        return
     ui.label("Parameters of the linear model (the diagnosis refits them with the physics it "
              "finds)").classes("text-base font-semibold mt-2")
     _parameter_table(result)
@@ -433,6 +438,15 @@ def _finding_card(f: Mapping[str, Any]) -> None:
         expl = find(f, "explanation", "why", "description")
         if expl:
             ui.label(str(expl)).classes("text-sm")
+        shape = f.get("shape_description")
+        if isinstance(shape, list) and shape:
+            with ui.column().classes("gap-0").mark("finding-shape"):
+                for line in shape:
+                    ui.label(f"• {line}").classes("text-sm")
+            gain = f.get("held_out_gain")
+            if isinstance(gain, int | float):
+                ui.label(f"a smooth model of this shape predicts {100 * gain:.0f} % of the "
+                         "force left on held-out data").classes("text-xs text-gray-600")
         params, stds = f.get("parameters"), f.get("std") or {}
         if isinstance(params, Mapping) and params:
             ui.label(", ".join(
@@ -547,6 +561,11 @@ def render_diagnosis(result: Mapping[str, Any], recording_view=None) -> None:
     ``recording_view(windows)``, when given, draws the recording with the time windows
     shaded (the page supplies it: it knows the session files).
     """
+    from fielddiag.web.vehicle_view import is_full_vehicle_result, render_vehicle_diagnosis
+
+    if is_full_vehicle_result(result):
+        render_vehicle_diagnosis(result)
+        return
     verdict = result.get("verdict")
     if verdict:
         missing = verdict != "adequate"
@@ -610,6 +629,23 @@ def render_diagnosis(result: Mapping[str, Any], recording_view=None) -> None:
                                  title="Residual: recording minus model",
                                  mark_x_windows=wins, zoom=True)).classes(
                 "w-full h-56").classes("fd-residual-chart").mark("residual-chart")
+    unit = "N" if result.get("mode") == "pair" else "N/kg"
+    for loop in result.get("restoring_force") or []:
+        r = _arr(loop.get("r_m")) if isinstance(loop, Mapping) else None
+        if r is None:
+            continue
+        series = [{"name": "recording", "x": 1e3 * r, "y": _arr(loop.get("measured")),
+                   "color": "#7f7f7f", "width": 3, "opacity": 0.5}]
+        for key, label in (("linear", "linear model"), ("augmented", "with findings")):
+            y = _arr(loop.get(key))
+            if y is not None and y.size == r.size:
+                series.append({"name": label, "x": 1e3 * r, "y": y, "width": 1.2,
+                               "color": FIT_COLOURS[label], "dashed": label == "with findings"})
+        ui.echart(xy_options(series, x_name="suspension travel [mm] (+ rebound)",
+                             y_name=f"restoring force [{unit}]",
+                             title=f"Restoring force against travel, held out: "
+                                   f"{loop.get('session', '')}")).classes(
+            "w-full h-96").classes("fd-loop-chart").mark("loop-chart")
     if not fits and recording_view is not None and where["windows"]:
         recording_view(where["windows"])
 

@@ -28,13 +28,19 @@ EFFECT_CASES = {
     "cubic_stiffness": ["cubic_1", "cubic_2", "cubic_3", "small_cubic"],
     "bump_stop": ["bump_stop_1", "bump_stop_2", "bump_stop_3", "small_bump_stop"],
     "asymmetric_damping": ["asymmetric_1", "asymmetric_2", "asymmetric_3", "small_asymmetric"],
+    "quadratic_damping": ["quadratic_damping"],
 }
 SINGLE = [name for names in EFFECT_CASES.values() for name in names]
 PAIRS = ["friction_and_asymmetric", "cubic_and_bump_stop"]
-OUTSIDE = ["quadratic_damping"]
+OUTSIDE = ["travel_dependent_damping"]
 LINEAR = ["linear_plain", "linear_noisy_200hz", "linear_short", "linear_bias_drift"]
 SENSOR = ["sensor_gain_changed", "channel_time_offset", "clipping"]
 ALL_CASES = SINGLE + PAIRS + OUTSIDE + LINEAR + SENSOR
+
+#: The module diagnoses the whole catalogue in two workers; the first test that needs the
+#: results waits for all of them (about 10 min on two loaded cores with the library of
+#: issue 17), longer than the suite's default per-test limit.
+pytestmark = pytest.mark.timeout(2400)
 
 #: Parameter tolerance: one effect alone / each of two effects acting together.
 REL_SINGLE = 0.20
@@ -220,16 +226,23 @@ def test_two_effects_are_both_named_with_their_sizes(results, name):
 
 
 def test_effect_outside_the_library_is_unexplained_where_it_acts(results):
-    out = results["quadratic_damping"]["out"]
+    """Damping that grows with travel is in no library effect: it is reported as
+    ``unexplained``, with a smooth model of its shape that predicts at least 30 % of the
+    held-out force left (the issue's figure), words that say the damping changes with
+    travel, and a region away from the ride height."""
+    out = results["travel_dependent_damping"]["out"]
     assert out["verdict"] == "missing_physics"
     last = out["findings"][-1]
     assert last["effect"] == "unexplained"
+    assert last["held_out_gain"] >= 0.30
+    assert last["model"]["coefficients_n"] and last["shape_description"]
+    words = " ".join(last["shape_description"])
+    assert "damping" in words and "mm of" in words, words
     region = last["where"]["region"]
     assert region is not None
-    # velocity-squared damping departs from a linear damper at the fast strokes: the
-    # located region reaches beyond the middle half of the rdot range on the map
-    edges = out["departure_map"]["rdot_edges_mps"]
-    lo, hi = region["rdot_mps"]
+    # it acts where the travel is large: the region reaches the outer quarters of r
+    edges = out["departure_map"]["r_edges_m"]
+    lo, hi = region["r_m"]
     quarter = 0.25 * (edges[-1] - edges[0])
     assert lo <= edges[0] + quarter or hi >= edges[-1] - quarter, (region, edges[0], edges[-1])
 

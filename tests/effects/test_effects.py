@@ -14,16 +14,20 @@ from fielddiag import effects as fx
 from fielddiag.effects import (
     EFFECTS,
     AsymmetricDamping,
+    BoucWen,
     BumpStop,
     CoulombFriction,
     CouplingSpring,
     CubicStiffness,
+    DigressiveDamping,
     Effect,
     HystereticSpring,
     LinearDamper,
     LinearSpring,
     ParamSpec,
     QuadraticDamping,
+    SeriesTopMount,
+    TravelDependentDamping,
     diagnosis_effects,
     make_effect,
     register_effect,
@@ -48,6 +52,12 @@ HAND = [
     (AsymmetricDamping(1000.0, 3000.0), 0.0, -0.3, 0.0, 300.0),
     (AsymmetricDamping(1000.0, 3000.0), 0.0, 0.3, 0.0, -900.0),
     (QuadraticDamping(2000.0), 0.0, -0.5, 0.0, 500.0),
+    # blow-off above the knee: the damper's slope loses `drop` (sharp knee when simulated)
+    (DigressiveDamping(0.1, 600.0, 0.2, 1200.0), 0.0, -0.3, 0.0, -600.0 * 0.2),
+    (DigressiveDamping(0.1, 600.0, 0.2, 1200.0), 0.0, 0.5, 0.0, 1200.0 * 0.3),
+    (DigressiveDamping(0.1, 600.0, 0.2, 1200.0), 0.0, 0.15, 0.0, 0.0),
+    (TravelDependentDamping(1800.0, 0.03), 0.03, 0.2, 0.0, -360.0),
+    (TravelDependentDamping(1800.0, 0.03), -0.015, -0.2, 0.0, 90.0),
 ]
 
 
@@ -64,6 +74,54 @@ def test_hysteretic_force_and_state_rate_by_hand() -> None:
                                               model.values_of(), np.array([[1e-3]]))
     assert f[0] == pytest.approx(-20.0, rel=1e-12)  # -k z
     assert dz[0, 0] == pytest.approx(0.1 - 0.1 * 0.5, rel=1e-12)  # rdot - |rdot| z / z_y
+
+
+def test_stateful_force_and_state_rates_by_hand() -> None:
+    # Bouc-Wen, n = 2: loading (rdot w > 0) slows as |w|^n; unloading runs at rdot / x_y
+    bw = fx.ForceModel([BoucWen(hysteretic_force_n=200.0, yield_displacement_m=1e-3,
+                                yield_exponent=2.0)])
+    f, _, _, dz = bw.force_and_state_rates(np.array([0.0, 0.0]), np.array([0.1, -0.1]), 0.0,
+                                           bw.values_of(), np.array([[0.5], [0.5]]))
+    np.testing.assert_allclose(f, [-100.0, -100.0], rtol=1e-12)
+    np.testing.assert_allclose(dz[:, 0], [0.1 / 1e-3 * (1 - 0.25), -0.1 / 1e-3], rtol=1e-12)
+    # a damper through a top mount: the mount carries k_m u = c (rdot - du/dt)
+    tm = fx.ForceModel([SeriesTopMount(suspension_damping_ns_per_m=1800.0,
+                                       mount_stiffness_n_per_m=1.5e5)])
+    f, _, _, dz = tm.force_and_state_rates(np.array([0.0]), np.array([0.1]), 0.0,
+                                           tm.values_of(), np.array([[1e-3]]))
+    assert f[0] == pytest.approx(-150.0, rel=1e-12)
+    assert dz[0, 0] == pytest.approx(0.1 - 1.5e5 / 1800.0 * 1e-3, rel=1e-12)
+
+
+def test_states_integrated_along_a_path() -> None:
+    """force_along_path: the states follow the path (a fine-step run agrees to 1e-6 of
+    the loop once started), the top mount's force tends to the damper's at low frequency, and the
+    parameter derivatives through the states match central differences."""
+    fs = 200.0
+    t = np.arange(0.0, 10.0, 1 / fs)
+    r = 0.01 * np.sin(2 * np.pi * 0.2 * t)
+    rd = 0.01 * 2 * np.pi * 0.2 * np.cos(2 * np.pi * 0.2 * t)
+    tm = fx.ForceModel([SeriesTopMount(1800.0, 1.5e5)])
+    th = tm.values_of()
+    f, _, dp, z = tm.force_along_path(r, rd, 0.0, th, fs)
+    lag = 2 * np.pi * 0.2 * 1800.0 / 1.5e5  # the mount's first-order share at 0.2 Hz: 1.5 %
+    assert np.max(np.abs(f[200:] + 1800.0 * rd[200:])) < 1.5 * lag * np.max(np.abs(1800 * rd))
+    fine = np.arange(0.0, 10.0, 1 / (10 * fs))
+    f10 = tm.force_along_path(np.interp(fine, t, r), np.interp(fine, t, rd), 0.0, th,
+                              10 * fs)[0]
+    # RK4 at a step of 0.42 / (k_m / c): 1e-4 in the start-up transient, 1e-6 after it
+    err = np.abs(f - f10[::10]) / np.max(np.abs(f))
+    assert err.max() < 1e-3 and err[200:].max() < 1e-6
+    bw = fx.ForceModel([BoucWen(200.0, 1e-3, 2.0)])
+    thb = bw.values_of()
+    _, _, dpb, _ = bw.force_along_path(r, rd, 0.0, thb, fs)
+    for j, h in ((1, 1e-8), (2, 1e-5)):
+        tp, tm_ = thb.copy(), thb.copy()
+        tp[j] += h
+        tm_[j] -= h
+        cd = (bw.force_along_path(r, rd, 0.0, tp, fs)[0]
+              - bw.force_along_path(r, rd, 0.0, tm_, fs)[0]) / (2 * h)
+        assert np.max(np.abs(cd - dpb[:, j])) < 1e-3 * np.max(np.abs(cd)), j
 
 
 # ------------------------------------------------------------------ derivatives
@@ -123,10 +181,13 @@ def test_parameters_carry_si_units_and_bounds() -> None:
         assert cls.description, cls.name
         for p in cls.params:
             assert p.unit and p.lower <= p.typical <= p.upper, (cls.name, p.name)
-            assert p.name.endswith(("_n", "_m", "_mps", "_n_per_m", "_ns_per_m", "_n_per_m3",
-                                    "_ns2_per_m2")), p.name
+            si = ("_n", "_m", "_mps", "_n_per_m", "_ns_per_m", "_n_per_m3", "_ns2_per_m2")
+            dimensionless = p.unit == "1" and p.name.endswith("_exponent")
+            assert p.name.endswith(si) or dimensionless, p.name
     assert diagnosis_effects() == ("coulomb_friction", "cubic_stiffness", "bump_stop",
-                                   "asymmetric_damping")
+                                   "asymmetric_damping", "quadratic_damping",
+                                   "digressive_damping", "hysteretic_spring", "bouc_wen",
+                                   "series_top_mount")
 
 
 def test_values_are_checked_and_round_trip() -> None:
@@ -209,7 +270,7 @@ def test_a_new_effect_is_simulated_fitted_and_diagnosed(cubic_damper) -> None:
 def test_an_effect_with_internal_state_is_fitted_through_its_state() -> None:
     """Dahl hysteresis (a hidden deflection state): the grey-box fit integrates the state
     along the simulated body motion and recovers every parameter and the sprung mass from
-    noise-free data started 50 % off (derivatives by forward differences: 1e-5 of truth)."""
+    noise-free data started 50 % off (derivatives by forward differences)."""
     from fielddiag.identify.greybox import GreyBoxData, fit_greybox
     from fielddiag.sim import QuarterCarParams, simulate_pair
 
@@ -222,5 +283,7 @@ def test_an_effect_with_internal_state_is_fitted_through_its_state() -> None:
                       initial={k: 1.5 * v for k, v in truth.items()})
     got = {p.key: p.value for p in res.parameters}
     for key, value in truth.items():
-        assert got[key] == pytest.approx(value, rel=1e-5), key
+        # the fit's RK4 steps at the sample rate (with the substeps the state's rate
+        # needs), the simulator's at >= 4 kHz: their discretisations agree to 1e-4
+        assert got[key] == pytest.approx(value, rel=1e-4), key
     assert max(s.nrmse for s in res.sessions) < 1e-4

@@ -358,13 +358,17 @@ def test_simulated_force_obeys_equations_with_effects() -> None:
 
 
 def test_make_effect_and_errors() -> None:
-    assert set(EFFECTS) == {
+    assert set(EFFECTS) >= {
         "coulomb_friction",
         "cubic_stiffness",
         "bump_stop",
         "asymmetric_damping",
         "quadratic_damping",
         "hysteretic_spring",
+        "bouc_wen",
+        "digressive_damping",
+        "series_top_mount",
+        "travel_dependent_damping",
     }
     e = make_effect("coulomb_friction", friction_force_n="80")
     assert e == CoulombFriction(friction_force_n=80.0, smoothing_velocity_mps=0.01)

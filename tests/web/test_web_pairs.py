@@ -65,13 +65,27 @@ def server_of():
         s.stop()
 
 
-def test_identification_preselects_the_partner_by_vehicle_not_by_name(
-        page, sessions_root: Path, server_of) -> None:
+@pytest.fixture(scope="module")
+def shared(tmp_path_factory, pair_template: Path):
+    """One server for the identification tests (a server starts in ~5 s): its root holds
+    the pair (car-a/) and each test's own folder of drives."""
+    import shutil
+
+    root = tmp_path_factory.mktemp("pairs-shared")
+    shutil.copytree(pair_template, root, dirs_exist_ok=True)
+    server = LiveServer(root)
+    try:
+        yield root, server
+    finally:
+        server.stop()
+
+
+def test_identification_preselects_the_partner_by_vehicle_not_by_name(page, shared) -> None:
     """car-a holds its pair and, first by name, an 'after' drive of another car: the
     identification page pairs car-a/before.h5 with its own after drive."""
+    sessions_root, server = shared
     _drive(sessions_root / "car-a", "a-other-car.h5", mass_kg=60.0, seed=5,
            vehicle="another car")
-    server = server_of(sessions_root)
     d = page
     d.get(server.url + "/identify?before=car-a%2Fbefore.h5")
     wait_until(lambda: any(v.startswith("car-a/after.h5") for v in _select_values(d)),
@@ -91,14 +105,14 @@ def test_identification_preselects_the_partner_by_vehicle_not_by_name(
     assert js_errors(d) == []
 
 
-@pytest.mark.xfail(run=False, reason=(
-    "known bug, open: after a session page was shown, the diagnosis page started from it "
-    "stops receiving updates a few seconds into its job (the job finishes, the server is "
-    "idle, the socket stays connected; the same diagnosis started on a freshly loaded "
-    "diagnosis page completes). Reproduced on the commit before this session's work; not "
-    "run: it would only wait out its 240 s"))
 def test_diagnosis_opened_from_a_session_keeps_the_pair(page, sessions_root: Path,
                                                         server_of) -> None:
+    """Diagnose reached from a session page: the pair is preselected, and the page shows
+    the result when the job ends. It used to stop updating: the session page had forked
+    the session reader worker, which kept copies of the browser's keep-alive connections;
+    closed by the server they stayed open, and the browser's request for the results'
+    components waited in one of them forever (nicegui handles its messages in order, so
+    every later update waited behind it)."""
     if not diagnosis_backend().available:
         pytest.skip(diagnosis_backend().reason)
     server = server_of(sessions_root)
@@ -137,15 +151,16 @@ def test_diagnosis_opened_from_a_session_keeps_the_pair(page, sessions_root: Pat
     assert js_errors(d) == []
 
 
-def test_transmissibility_of_drives_at_500_and_500_001_hz_shows_both(
-        page, tmp_path: Path, server_of) -> None:
-    root = tmp_path / "rates"
-    _drive(root, "before.h5", mass_kg=0.0, seed=11, rate_hz=500.0, duration_s=40.0)
-    _drive(root, "after.h5", mass_kg=60.0, seed=12, rate_hz=500.001, duration_s=40.0)
-    server = server_of(root)
+def test_transmissibility_of_drives_at_500_and_500_001_hz_shows_both(page, shared) -> None:
+    top, server = shared
+    root = top / "rates"
+    _drive(root, "before.h5", mass_kg=0.0, seed=11, rate_hz=500.0, duration_s=40.0,
+           vehicle="rates car")
+    _drive(root, "after.h5", mass_kg=60.0, seed=12, rate_hz=500.001, duration_s=40.0,
+           vehicle="rates car")
     d = page
-    d.get(server.url + "/identify?before=before.h5")
-    wait_until(lambda: any(v.startswith("after.h5") for v in _select_values(d)),
+    d.get(server.url + "/identify?before=rates%2Fbefore.h5")
+    wait_until(lambda: any(v.startswith("rates/after.h5") for v in _select_values(d)),
                what="pair preselected")
     click_text(d, "Run identification", "button", exact=False)
     wait_until(lambda: "sprung mass M2" in text_of(d), timeout_s=120, what="parameter table")
@@ -183,7 +198,9 @@ def test_can_only_session_shows_its_real_duration(page, tmp_path: Path, server_o
     wait_until(lambda: "can-only.h5" in text_of(d), what="session list")
     assert "60.0 s" in text_of(d) or "1 min" in text_of(d)
     click_text(d, "can-only.h5", "a")
-    series = wait_until(lambda: chart_series(d, ".fd-session-chart"), what="session chart")
+    # the layout comes first, the points just after it
+    series = wait_until(lambda: (s := chart_series(d, ".fd-session-chart"))
+                        and all(k > 0 for _, k, _ in s) and s, what="session chart")
     (name, n, last), = series
     assert name == "SPEED" and n > 100
     assert 64.0 < last <= 65.0  # the signal's own span: 5 s to 65 s

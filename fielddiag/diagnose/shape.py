@@ -1,0 +1,333 @@
+"""A model of the force no library effect names: a smooth surface in travel and speed plus
+a hysteresis state, and its shape in words.
+
+When the diagnosis is left with structure that no effect of the library explains, it does
+not force a name on it. It fits the force the model leaves (the *departure*, in N) as
+
+    departure(r, rdot) = S(r, rdot) + F_h w(t)
+
+with ``S`` a tensor-product cubic B-spline (knots at quantiles of the measured travel and
+speed, so each cell holds data) and ``w`` a Dahl hysteresis state (``dw/dt = (rdot -
+|rdot| w) / x_y``, its yield travel chosen on a grid), by ridge-regularised linear least
+squares on the fit part of the drives; its gain is scored on the held-out part. The
+fitted surface is then read back in words a technician understands: where the force
+rises steeper (or softer) than the linear spring, where the damping grows or fades and in
+which direction, and how much energy a hysteresis loop holds per cycle.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numba import njit
+from scipy.interpolate import BSpline
+
+__all__ = ["ShapeModel", "describe_shape", "fit_shape_model"]
+
+#: Interior knots per axis of the spline surface (cubic: knots + 4 basis functions).
+INTERIOR_KNOTS = 4
+#: Ridge weight relative to the mean diagonal of the normal matrix.
+RIDGE = 1e-6
+#: Yield travels tried for the hysteresis state [m].
+YIELD_GRID_M = (2e-4, 5e-4, 1e-3, 2e-3, 5e-3)
+#: A local stiffness or damping counts as different from the linear one beyond this share.
+SHAPE_CHANGE = 0.15
+
+
+def _basis_1d(x: np.ndarray, knots: np.ndarray) -> np.ndarray:
+    """Cubic B-spline design matrix on ``knots`` (boundary knots repeated); values outside
+    the knot span are clamped to it (the surface continues flat)."""
+    lo, hi = knots[0], knots[-1]
+    t = np.concatenate([[lo] * 3, knots, [hi] * 3])
+    xc = np.clip(x, lo, hi)
+    return BSpline.design_matrix(xc, t, 3).toarray()
+
+
+def _tensor(br: np.ndarray, bv: np.ndarray) -> np.ndarray:
+    return (br[:, :, None] * bv[:, None, :]).reshape(br.shape[0], -1)
+
+
+def dahl_state(rdot_mps: np.ndarray, sample_rate_hz: float, yield_m: float,
+               segments: np.ndarray | None = None) -> np.ndarray:
+    """The Dahl state ``w`` in [-1, 1] along a path (exact for a rate held over each step).
+
+    Parameters
+    ----------
+    rdot_mps : ndarray
+        Suspension rate [m/s] at the samples.
+    sample_rate_hz : float
+        Sample rate [Hz].
+    yield_m : float
+        Yield travel ``x_y`` [m].
+    segments : ndarray or None
+        Segment label per sample: the state restarts at 0 where the label changes.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``w`` at the samples.
+    """
+    v = np.ascontiguousarray(rdot_mps, dtype=float)
+    seg = (np.zeros(v.size, np.int64) if segments is None
+           else np.ascontiguousarray(segments, dtype=np.int64))
+    return _dahl(v, 1.0 / sample_rate_hz, float(yield_m), seg)
+
+
+@njit(cache=True, nogil=True)
+def _dahl(v, h, yield_m, seg):  # pragma: no cover - compiled
+    w = np.empty(v.size)
+    cur = 0.0
+    for i in range(v.size):
+        if i > 0 and seg[i] != seg[i - 1]:
+            cur = 0.0
+        w[i] = cur
+        target = 1.0 if v[i] > 0 else -1.0
+        cur = target + (cur - target) * math.exp(-abs(v[i]) * h / yield_m)
+    return w
+
+
+@dataclass
+class ShapeModel:
+    """A fitted departure surface (and hysteresis) with its held-out score.
+
+    Attributes
+    ----------
+    r_knots_m, rdot_knots_mps : ndarray
+        Knots of the spline in travel [m] and speed [m/s].
+    coefficients_n : ndarray
+        ``(len(r basis), len(rdot basis))`` spline coefficients [N].
+    hysteretic_force_n : float
+        ``F_h`` of the hysteresis state [N] (0 when it did not help).
+    yield_displacement_m : float
+        Its yield travel [m].
+    held_out_gain : float
+        ``1 - mse(held-out departure - model) / mse(held-out departure)``.
+    description : list of str
+        The shape in words (:func:`describe_shape`).
+    """
+
+    r_knots_m: np.ndarray
+    rdot_knots_mps: np.ndarray
+    coefficients_n: np.ndarray
+    hysteretic_force_n: float
+    yield_displacement_m: float
+    held_out_gain: float
+    description: list[str] = field(default_factory=list)
+
+    def surface(self, r_m: np.ndarray, rdot_mps: np.ndarray) -> np.ndarray:
+        """The memoryless part ``S(r, rdot)`` [N] at the given points.
+
+        Parameters
+        ----------
+        r_m, rdot_mps : ndarray
+            Travel [m] and speed [m/s] (same shape).
+
+        Returns
+        -------
+        numpy.ndarray
+        """
+        r = np.asarray(r_m, float).ravel()
+        v = np.asarray(rdot_mps, float).ravel()
+        b = _tensor(_basis_1d(r, self.r_knots_m), _basis_1d(v, self.rdot_knots_mps))
+        return (b @ self.coefficients_n.ravel()).reshape(np.shape(r_m))
+
+    def to_dict(self) -> dict:
+        """JSON-ready model: knots, coefficients, hysteresis, gain and the words.
+
+        Returns
+        -------
+        dict
+        """
+        return {
+            "kind": "cubic B-spline surface in travel and speed + Dahl hysteresis state",
+            "r_knots_m": self.r_knots_m.tolist(),
+            "rdot_knots_mps": self.rdot_knots_mps.tolist(),
+            "coefficients_n": self.coefficients_n.tolist(),
+            "hysteretic_force_n": self.hysteretic_force_n,
+            "yield_displacement_m": self.yield_displacement_m,
+            "held_out_gain": self.held_out_gain,
+            "description": list(self.description),
+        }
+
+
+def _knots(x: np.ndarray) -> np.ndarray:
+    q = np.quantile(x, np.linspace(0.01, 0.99, INTERIOR_KNOTS + 2))
+    q = np.unique(q)
+    if q.size < 3:  # a degenerate axis: a span around its value
+        c, s = float(np.median(x)), float(np.std(x)) or 1e-6
+        q = np.array([c - s, c, c + s])
+    return q
+
+
+def _solve(a: np.ndarray, y: np.ndarray) -> np.ndarray:
+    ata = a.T @ a
+    lam = RIDGE * float(np.mean(np.diag(ata))) or RIDGE
+    return np.linalg.solve(ata + lam * np.eye(ata.shape[0]), a.T @ y)
+
+
+def fit_shape_model(
+    r_m: np.ndarray,
+    rdot_mps: np.ndarray,
+    departure_n: np.ndarray,
+    is_held_out: np.ndarray,
+    sample_rate_hz: float,
+    segments: np.ndarray | None = None,
+    *,
+    stiffness_n_per_m: float | None = None,
+    damping_ns_per_m: float | None = None,
+) -> ShapeModel:
+    """Fit the departure on the fit samples; score it on the held-out ones.
+
+    Parameters
+    ----------
+    r_m, rdot_mps : ndarray
+        Measured suspension travel [m] (from the loaded rest position) and speed [m/s].
+    departure_n : ndarray
+        Force the model leaves [N] at the samples.
+    is_held_out : ndarray of bool
+        Samples kept out of the fit and used to score it.
+    sample_rate_hz : float
+        Sample rate [Hz] (for the hysteresis state).
+    segments : ndarray or None
+        Segment label per sample (drives and parts are not contiguous in time).
+    stiffness_n_per_m, damping_ns_per_m : float or None
+        The linear model's spring and damper, to word the shape relative to them.
+
+    Returns
+    -------
+    ShapeModel
+    """
+    r = np.asarray(r_m, float)
+    v = np.asarray(rdot_mps, float)
+    y = np.asarray(departure_n, float)
+    held = np.asarray(is_held_out, bool)
+    fit = ~held
+    kr, kv = _knots(r[fit]), _knots(v[fit])
+    base = _tensor(_basis_1d(r, kr), _basis_1d(v, kv))
+    y0 = y - np.mean(y[fit])
+
+    def score(a: np.ndarray) -> tuple[float, np.ndarray]:
+        coef = _solve(a[fit], y0[fit])
+        e = y0[held] - a[held] @ coef
+        ref = y0[held] - np.mean(y0[held])
+        return 1.0 - float(np.mean(e**2) / max(np.mean(ref**2), 1e-300)), coef
+
+    best_gain, best_coef = score(base)
+    best_yield, best_fh = math.nan, 0.0
+    for xy in YIELD_GRID_M:
+        w = dahl_state(v, sample_rate_hz, xy, segments)
+        gain, coef = score(np.column_stack([base, w]))
+        if gain > best_gain + 0.01:  # the state must earn its column
+            best_gain, best_coef, best_yield, best_fh = gain, coef[:-1], xy, float(coef[-1])
+    model = ShapeModel(kr, kv, best_coef.reshape(kr.size + 2, kv.size + 2), best_fh,
+                       best_yield, best_gain)
+    model.description = describe_shape(model, r[fit], v[fit], sample_rate_hz,
+                                       stiffness_n_per_m, damping_ns_per_m)
+    return model
+
+
+def _first_beyond(x: np.ndarray, change: np.ndarray) -> tuple[float, float] | None:
+    """(where along x the relative change first exceeds SHAPE_CHANGE and stays, its mean
+    change beyond), scanning outward from the centre."""
+    idx = np.flatnonzero(np.abs(change) > SHAPE_CHANGE)
+    if idx.size == 0:
+        return None
+    i0 = idx[0]
+    tail = change[i0:]
+    if np.mean(np.abs(tail) > SHAPE_CHANGE) < 0.6:
+        return None
+    return float(x[i0]), float(np.mean(tail))
+
+
+def describe_shape(model: ShapeModel, r_m: np.ndarray, rdot_mps: np.ndarray,
+                   sample_rate_hz: float, stiffness_n_per_m: float | None = None,
+                   damping_ns_per_m: float | None = None) -> list[str]:
+    """The fitted shape in plain words (sentences), relative to the linear model.
+
+    Parameters
+    ----------
+    model : ShapeModel
+        The fitted surface and hysteresis.
+    r_m, rdot_mps : ndarray
+        The travel [m] and speed [m/s] the model was fitted on (its range).
+    sample_rate_hz : float
+        Sample rate [Hz].
+    stiffness_n_per_m, damping_ns_per_m : float or None
+        The linear spring and damper; without them changes are given in N/m and N s/m.
+
+    Returns
+    -------
+    list of str
+    """
+    out: list[str] = []
+    k = abs(stiffness_n_per_m) if stiffness_n_per_m else None
+    c = abs(damping_ns_per_m) if damping_ns_per_m else None
+    # stiffness along the travel at rest speed: the surface's slope adds to the spring's
+    # (force on the body is -K r: a departure slope -dS/dr stiffens)
+    for word, q in (("compression", 0.005), ("rebound", 0.995)):
+        x_end = float(np.quantile(r_m, q))
+        if (x_end < 0) != (word == "compression") or abs(x_end) < 1e-6:
+            continue
+        x = np.linspace(0.0, x_end, 40)
+        s = model.surface(x, np.zeros_like(x))
+        slope = -np.gradient(s, x)
+        rel = slope / k if k else slope / max(np.max(np.abs(slope)), 1e-9)
+        hit = _first_beyond(np.abs(x), rel)
+        if hit is not None:
+            where, change = hit
+            how = "steeper" if change > 0 else "softer"
+            size = f"{100 * abs(change):.0f} % {how} than the linear spring" if k else how
+            span = (f"beyond {1e3 * where:.0f} mm of {word} (from the unloaded ride height)"
+                    if where >= 1e-3 else f"throughout {word}")
+            out.append(f"the force rises {size} {span}")
+    for side, q in (("compression", 0.005), ("rebound", 0.995)):
+        v_end = float(np.quantile(rdot_mps, q))
+        if abs(v_end) < 1e-6:
+            continue
+        v = np.linspace(0.0, v_end, 40)
+        s = model.surface(np.zeros_like(v), v)
+        slope = -np.gradient(s, v)
+        rel = slope / c if c else slope / max(np.max(np.abs(slope)), 1e-9)
+        hit = _first_beyond(np.abs(v), rel)
+        if hit is not None:
+            where, change = hit
+            how = "grows" if change > 0 else "fades"
+            size = f" by {100 * abs(change):.0f} %" if c else ""
+            span = f"above {where:.2g} m/s" if where >= 0.01 else "at every speed"
+            out.append(f"in {side} the damping {how}{size} {span}")
+    # damping that depends on where the suspension is (a position-sensitive damper)
+    v_span = float(np.quantile(np.abs(rdot_mps), 0.9)) or 1e-3
+    vv = np.linspace(-v_span, v_span, 21)
+
+    def damping_at(r0: float) -> float:
+        s = model.surface(np.full_like(vv, r0), vv)
+        return float(-np.polyfit(vv, s, 1)[0])
+
+    at_rest = damping_at(0.0)
+    ref = c if c else max(abs(at_rest), 1e-9)
+    for word, q in (("compression", 0.02), ("rebound", 0.98)):
+        r0 = float(np.quantile(r_m, q))
+        if (r0 < 0) != (word == "compression") or abs(r0) < 1e-4:
+            continue
+        change = (damping_at(r0) - at_rest) / ref
+        if abs(change) > SHAPE_CHANGE:
+            how = "higher" if change > 0 else "lower"
+            out.append(f"the damping is {100 * abs(change):.0f} % {how} at {1e3 * abs(r0):.0f} "
+                       f"mm of {word} than at the unloaded ride height")
+    if model.hysteretic_force_n and math.isfinite(model.yield_displacement_m):
+        w = dahl_state(np.asarray(rdot_mps, float), sample_rate_hz, model.yield_displacement_m)
+        power = abs(float(np.mean(model.hysteretic_force_n * w * rdot_mps)))
+        # dominant frequency of the travel: its zero-mean crossings per second / 2
+        rc = np.asarray(r_m, float) - np.mean(r_m)
+        crossings = np.count_nonzero(np.diff(np.signbit(rc)))
+        freq = crossings / 2.0 / (rc.size / sample_rate_hz) if rc.size else math.nan
+        if freq > 0:
+            out.append(f"a hysteresis loop of {power / freq:.3g} J per cycle at {freq:.2g} Hz "
+                       f"(the force lags the travel by about {1e3 * model.yield_displacement_m:.2g}"
+                       f" mm after each reversal, {abs(model.hysteretic_force_n):.3g} N high)")
+    if not out:
+        out.append("the force departs from the linear spring and damper without a simple "
+                   "trend in travel or speed; see the departure map")
+    return out

@@ -1,0 +1,932 @@
+"""Per-corner diagnosis of the full vehicle: which corner, which effect, where in time;
+and the left/right mismatch of an axle (a worn damper, a sagged spring).
+
+:func:`diagnose_vehicle` -> :class:`VehicleDiagnosis` (``to_dict()`` is the JSON of
+``fielddiag diagnose BEFORE.h5 AFTER.h5 --added-mass KG --added-mass-at X_M,Y_M``).
+
+Method (equation error, as the identification):
+
+1. Both drives are prepared as for the identification
+   (:func:`fielddiag.vehicle.identify.prepare_drive`: integrated, band-passed, decimated;
+   suspension travel and rate per corner) and the three body equations written linear in
+   the 18 parameters (:mod:`fielddiag.vehicle.regression`), the added mass fixing the scale,
+   the sensor-noise bias compensated.
+2. A candidate effect of the library at a corner (or on both corners of an axle with one
+   set of parameters) adds its force, evaluated on that corner's measured travel and rate,
+   to the three equations with the corner's lever arms ``[1, x, y]``. Its force is linear in
+   the parameters that scale with force (friction force, cubic stiffness, bump-stop
+   stiffness, compression/rebound damping...) once its shape parameters (bump-stop gap,
+   friction smoothing velocity) are fixed; those are searched on a short grid, chosen on
+   the fitted part. An effect that replaces the linear damper or spring (asymmetric
+   damping) takes that corner's column out.
+3. Every model is fitted by weighted least squares on the first 70 % of each drive and
+   predicts the body accelerations of the last 30 % (the four body sensors, from the
+   measured suspension motion); the selection rule of the single-corner diagnosis
+   (:func:`fielddiag.diagnose.selection.select_model`: a significant paired-block
+   improvement worth its parameters, parameters physical) picks the simplest model, then
+   greedily a further effect at another corner on top of it, up to ``max_effects``.
+4. The chosen model is fitted again on all the data for the reported parameters and their
+   standard deviations (block-sandwich covariance). Where in time: the windows where the
+   chosen model lowers the residual most.
+5. Left/right mismatch: per axle, the two corners' damping and stiffness of the chosen
+   model, their ratio with its delta-method standard deviation; a corner is reported when
+   the ratio departs from 1 by more than ``mismatch_tolerance`` (manufacturing spread)
+   significantly (one-sided z on the log ratio beyond the tolerance), with the z of the
+   plain difference and its two-sided p value.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy import signal, stats
+
+from fielddiag.blas import single_threaded_blas
+from fielddiag.channels import CORNERS
+from fielddiag.diagnose.selection import CandidateFit, compare, confidence, select_model
+from fielddiag.effects import EFFECTS, ForceModel, get_effect
+from fielddiag.errors import FieldDiagError, InvalidValueError
+from fielddiag.sim._common import G_MPS2
+from fielddiag.vehicle.identify import (
+    VehicleIdentifyConfig,
+    _derived,
+    body_noise_std_mps2,
+    car_accel_noise_std_mps2,
+    filter_response,
+    integrate_twice,
+    prepare_drive,
+)
+from fielddiag.vehicle.recording import VehicleRecording
+from fielddiag.vehicle.regression import (
+    N_PARAMS,
+    PARAM_NAMES,
+    DriveRegressors,
+    equation_rows,
+    mass_matrix,
+    noise_normal_equations,
+    weighted_least_squares,
+)
+
+__all__ = ["DEFAULT_EFFECTS", "VehicleDiagnoseConfig", "VehicleDiagnosis", "diagnose_vehicle",
+           "format_vehicle_summary"]
+
+#: Effects tried at every corner by default.
+DEFAULT_EFFECTS = ("coulomb_friction", "cubic_stiffness", "bump_stop", "asymmetric_damping",
+                   "quadratic_damping")
+AXLES = {"front": ("fl", "fr"), "rear": ("rl", "rr")}
+_K0, _C0 = 6, 10  # first stiffness / damping column in PARAM_NAMES
+
+
+@dataclass(frozen=True)
+class VehicleDiagnoseConfig:
+    """Settings of the full-vehicle diagnosis.
+
+    Parameters
+    ----------
+    identify : VehicleIdentifyConfig
+        Preparation of the drives (band, rate, trims) and noise compensation.
+    holdout_fraction : float
+        Last fraction of every drive held out for the model choice.
+    effects : tuple of str
+        Library effects tried at each corner and on each axle.
+    axle_candidates : bool
+        Also try each effect on both corners of an axle with shared parameters.
+    max_effects : int
+        Most effects in the chosen model (greedy forward selection).
+    exact_fits : int
+        Candidates of each round screened by a fast fixed-weight fit; this many of the
+        best that beat the current model are fitted again exactly for the choice.
+    mismatch_tolerance : float
+        Relative left/right difference tolerated without a finding (0.20: the ratio must
+        leave 1/1.2..1.2; two parts each within a +-10 % production spread differ by up
+        to ~20 %, and the random test cars' corners by up to 17 %).
+    mismatch_z : float
+        One-sided z the log ratio must exceed the tolerance by (1.645: 95 %).
+    window_s : float
+        Length of the time windows reported as where a finding acts [s].
+    """
+
+    identify: VehicleIdentifyConfig = VehicleIdentifyConfig(refine=False)
+    holdout_fraction: float = 0.3
+    effects: tuple[str, ...] = DEFAULT_EFFECTS
+    axle_candidates: bool = True
+    max_effects: int = 3
+    exact_fits: int = 4
+    mismatch_tolerance: float = 0.20
+    mismatch_z: float = 1.645
+    window_s: float = 5.0
+
+
+# --------------------------------------------------------------------------- candidates
+@dataclass(frozen=True)
+class _Term:
+    """One effect at one corner or on one axle, with its shape parameters fixed."""
+
+    effect: str
+    corners: tuple[str, ...]
+    shape: tuple[tuple[str, float], ...] = ()
+
+    @property
+    def place(self) -> str:
+        if len(self.corners) == 1:
+            return self.corners[0]
+        return "front" if self.corners[0][0] == "f" else "rear"
+
+    @property
+    def label(self) -> str:
+        return f"{self.effect}@{self.place}"
+
+    def linear_params(self) -> tuple[str, ...]:
+        return tuple(p.name for p in get_effect(self.effect).params if p.scales_with_force)
+
+    def replaced_columns(self) -> list[int]:
+        cls = get_effect(self.effect)
+        cols = []
+        for c in self.corners:
+            i = CORNERS.index(c)
+            if "linear_damper" in cls.replaces:
+                cols.append(_C0 + i)
+            if "linear_spring" in cls.replaces:
+                cols.append(_K0 + i)
+        return cols
+
+    def columns(self, d: DriveRegressors) -> np.ndarray:
+        """(3, n, p) columns of the body equations (the effect's force moved to the left).
+
+        The force is evaluated on the corner's travel and rate before the band-pass (only
+        the drift removed) and then filtered and decimated exactly like the other terms:
+        the equation holds between band-passed quantities, and the band-pass of a
+        nonlinear force is not the force of the band-passed motion (friction came out
+        ~40 % low that way).
+        """
+        key = (self, id(d))
+        hit = _COLUMNS.get(key)
+        if hit is not None and hit[0] is d:
+            return hit[1]
+        cls = get_effect(self.effect)
+        if self.effect not in _MODELS:
+            _MODELS[self.effect] = ForceModel([cls()])
+        model = _MODELS[self.effect]
+        lin = self.linear_params()
+        values = {p.name: (p.typical if p.scales_with_force else
+                           (p.default if p.default is not None else p.typical))
+                  for p in cls.params}
+        values.update(dict(self.shape))
+        vec = model.vector(values)
+        idx = [model.index(p) for p in lin]
+        raw = _RAW[id(d)][1]
+        out = np.zeros((3, d.n, len(lin)))
+        for c in self.corners:
+            i = CORNERS.index(c)
+            _, _, dp = model.force(raw.r[i], raw.rd[i], 0.0, vec)
+            cols = raw.filter(-dp[:, idx].T)  # (p, n)
+            lever = np.array([1.0, d.corner_x[i], d.corner_y[i]])
+            for e in range(3):
+                out[e] += lever[e] * cols.T
+        _COLUMNS[key] = (d, out)
+        return out
+
+
+@dataclass
+class _RawMotion:
+    """A drive's suspension travel and rate at the recording rate (drift removed only),
+    and the band-pass, trim and decimation of :func:`prepare_drive` to apply to a force."""
+
+    r: np.ndarray
+    rd: np.ndarray
+    sos: np.ndarray
+    passes: int
+    keep: slice
+
+    def filter(self, x: np.ndarray) -> np.ndarray:
+        """Band-pass (zero phase, as often as the identification), trim, decimate."""
+        for _ in range(self.passes):
+            x = signal.sosfiltfilt(self.sos, x, axis=-1)
+        return x[..., self.keep]
+
+
+def _static_sag_m(theta: np.ndarray, d: DriveRegressors) -> np.ndarray:
+    """Static change of each corner's travel [m] from the added mass of drive ``d`` (tyres
+    taken as rigid), from the linear model's corner and anti-roll stiffness."""
+    if not d.added_mass_kg:
+        return np.zeros(4)
+    th = np.nan_to_num(theta)
+    lever = np.array([np.ones(4), d.corner_x, d.corner_y])  # (3, 4)
+    stiff = (lever * th[_K0:_K0 + 4]) @ lever.T
+    tf, tr = d.corner_y[0] - d.corner_y[1], d.corner_y[2] - d.corner_y[3]
+    stiff[2, 2] += th[14] * tf**2 + th[15] * tr**2
+    xa, ya = d.added_mass_at_m
+    load = -d.added_mass_kg * G_MPS2 * np.array([1.0, xa, ya])
+    return lever.T @ np.linalg.solve(stiff, load)
+
+
+def _raw_motion(rec: VehicleRecording, cfg: VehicleIdentifyConfig) -> _RawMotion:
+    fs = float(rec.sample_rate_hz)
+    lo, hi = cfg.band_hz
+    acc = np.vstack([rec.wheel_accel_mps2, rec.body_accel_mps2]).astype(float)
+    _, v, x = integrate_twice(acc, fs, 0.5 * lo)
+    g = rec.geometry
+    proj = g.corner_matrix() @ np.linalg.pinv(g.sensor_matrix())
+    r = proj @ x[4:] - x[:4]
+    rd = proj @ v[4:] - v[:4]
+    sos = signal.butter(cfg.filter_order, [lo, hi], "bandpass", fs=fs, output="sos")
+    step = max(1, int(fs // cfg.analysis_rate_hz))
+    trim = int(round((4.5 / lo if cfg.trim_s is None else cfg.trim_s) * fs))
+    return _RawMotion(r, rd, sos, cfg.passes, slice(trim, acc.shape[1] - trim, step))
+
+
+#: One compiled ForceModel per effect, and the columns of the terms of the running
+#: diagnosis (cleared at its start and end).
+_MODELS: dict[str, ForceModel] = {}
+_COLUMNS: dict[tuple[_Term, int], tuple[DriveRegressors, np.ndarray]] = {}
+_RAW: dict[int, tuple[DriveRegressors, _RawMotion]] = {}
+_ROWS: dict[int, tuple[DriveRegressors, np.ndarray, np.ndarray]] = {}
+
+
+def _equation_rows(d: DriveRegressors) -> tuple[np.ndarray, np.ndarray]:
+    hit = _ROWS.get(id(d))
+    if hit is not None and hit[0] is d:
+        return hit[1], hit[2]
+    a, b = equation_rows(d)
+    _ROWS[id(d)] = (d, a, b)
+    return a, b
+
+
+def _shape_grid(effect: str, r: np.ndarray) -> list[tuple[tuple[str, float], ...]]:
+    """Shape parameters to try: bump-stop gaps at quantiles of the compression, the
+    friction smoothing at its default and around it."""
+    if effect == "bump_stop":
+        comp = np.abs(np.minimum(r, 0.0))
+        qs = np.quantile(comp, [0.6, 0.75, 0.85, 0.9, 0.94, 0.97, 0.985, 0.995])
+        return [(("gap_m", float(q)),) for q in qs if q > 0]
+    if effect == "coulomb_friction":
+        return [(("smoothing_velocity_mps", v),) for v in (0.003, 0.01, 0.03)]
+    return [()]
+
+
+# --------------------------------------------------------------------------- fitting
+@dataclass
+class _Data:
+    """Both drives' rows and the extra columns of one model, split fit / held out."""
+
+    drives: list[DriveRegressors]
+    noise: dict[int, tuple[np.ndarray, np.ndarray]] | None  # group -> E[A^T A], E[A^T b]
+    split: list[int]  # first held-out sample of each drive
+
+    def noise_for(self, parts: Sequence[slice], n_cols: int
+                  ) -> dict[int, tuple[np.ndarray, np.ndarray]] | None:
+        """The noise's expected normal equations for the samples of ``parts`` (a share of
+        the drive's sums), padded with zeros for the effects' columns (their noise is
+        left out: the effects are evaluated on the measured motion)."""
+        if self.noise is None:
+            return None
+        out = {}
+        for g, (naa, nab) in self.noise.items():
+            d = self.drives[g // 3]
+            frac = len(range(*parts[g // 3].indices(d.n))) / d.n
+            aa = np.zeros((n_cols, n_cols))
+            ab = np.zeros(n_cols)
+            aa[:N_PARAMS, :N_PARAMS] = frac * naa
+            ab[:N_PARAMS] = frac * nab
+            out[g] = (aa, ab)
+        return out
+
+
+def _rows(drives: Sequence[DriveRegressors], terms: Sequence[_Term],
+          parts: Sequence[slice]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    rows, rhs, group, tidx = [], [], [], []
+    for k, (d, part) in enumerate(zip(drives, parts, strict=True)):
+        a, b = _equation_rows(d)
+        extra = [t.columns(d) for t in terms]
+        if extra:
+            a = np.concatenate([a, *extra], axis=2)
+        n = np.arange(d.n)[part]
+        for e in range(3):
+            rows.append(a[e, part])
+            rhs.append(b[e, part])
+            group.append(np.full(n.size, 3 * k + e))
+            tidx.append(n + 10**9 * k)
+    return np.vstack(rows), np.concatenate(rhs), np.concatenate(group), np.concatenate(tidx)
+
+
+@dataclass
+class _Fitted:
+    terms: tuple[_Term, ...]
+    theta: np.ndarray
+    cov: np.ndarray
+    fitted: np.ndarray
+    names: list[str]
+    group_sigma: np.ndarray | None = None
+
+
+def _fit(data: _Data, terms: Sequence[_Term], parts: Sequence[slice], fitted_base: np.ndarray,
+         block: int) -> _Fitted:
+    a, b, g, t = _rows(data.drives, terms, parts)
+    noise = data.noise_for(parts, a.shape[1])
+    fitted = np.concatenate([fitted_base, np.ones(a.shape[1] - N_PARAMS, bool)])
+    for term in terms:
+        fitted[term.replaced_columns()] = False
+    w = weighted_least_squares(a, b, g, t, fitted, block, noise)
+    names = list(PARAM_NAMES) + [f"{term.label}.{p}" for term in terms
+                                 for p in term.linear_params()]
+    return _Fitted(tuple(terms), w.theta, w.cov, w.fitted, names, w.group_sigma)
+
+
+def _names(terms: Sequence[_Term]) -> list[str]:
+    return list(PARAM_NAMES) + [f"{t.label}.{p}" for t in terms for p in t.linear_params()]
+
+
+class _Screen:
+    """Fast fixed-weight least squares for screening many candidates: the linear columns'
+    weighted normal equations (noise-compensated, the weights of the linear fit) are summed
+    once per equation group; a candidate adds only its own columns' products."""
+
+    def __init__(self, data: _Data, parts: Sequence[slice], fitted_base: np.ndarray,
+                 sigma: np.ndarray) -> None:
+        p = N_PARAMS
+        self.data, self.fitted_base = data, fitted_base
+        self.g, self.h = np.zeros((p, p)), np.zeros(p)
+        self.items = []
+        noise = data.noise_for(parts, p) or {}
+        for k, (d, part) in enumerate(zip(data.drives, parts, strict=True)):
+            a, b = _equation_rows(d)
+            for e in range(3):
+                w2 = 1.0 / sigma[3 * k + e] ** 2
+                ae, be = a[e, part], b[e, part]
+                self.g += w2 * ae.T @ ae
+                self.h += w2 * ae.T @ be
+                if 3 * k + e in noise:
+                    naa, nab = noise[3 * k + e]
+                    self.g -= w2 * naa
+                    self.h -= w2 * nab
+                self.items.append((d, e, part, w2, ae, be))
+
+    def fit(self, terms: Sequence[_Term]) -> _Fitted:
+        p = N_PARAMS
+        q = sum(len(t.linear_params()) for t in terms)
+        g = np.zeros((p + q, p + q))
+        h = np.zeros(p + q)
+        g[:p, :p], h[:p] = self.g, self.h
+        for d, e, part, w2, ae, be in self.items:
+            ex = np.concatenate([t.columns(d)[e, part] for t in terms], axis=1)
+            g[:p, p:] += w2 * ae.T @ ex
+            g[p:, p:] += w2 * ex.T @ ex
+            h[p:] += w2 * ex.T @ be
+        g[p:, :p] = g[:p, p:].T
+        fitted = np.concatenate([self.fitted_base, np.ones(q, bool)])
+        for t in terms:
+            fitted[t.replaced_columns()] = False
+        cols = np.flatnonzero(fitted)
+        gs = g[np.ix_(cols, cols)]
+        sc = np.sqrt(np.abs(np.diag(gs)))
+        sc[sc == 0] = 1.0
+        inv = np.linalg.pinv(gs / np.outer(sc, sc))
+        theta = np.full(p + q, np.nan)
+        theta[cols] = inv @ (h[cols] / sc) / sc
+        cov = np.zeros((p + q, p + q))
+        cov[np.ix_(cols, cols)] = inv / np.outer(sc, sc)
+        return _Fitted(tuple(terms), theta, cov, fitted, _names(terms))
+
+
+def _predict(f: _Fitted, d: DriveRegressors) -> np.ndarray:
+    """Body-sensor accelerations (4, n) from the measured suspension motion."""
+    a, _ = _equation_rows(d)
+    th = np.nan_to_num(f.theta)
+    rest = th[:N_PARAMS].copy()
+    rest[:6] = 0.0
+    forces = -(a @ rest)
+    p0 = N_PARAMS
+    for t in f.terms:
+        cols = t.columns(d)
+        forces -= cols @ th[p0:p0 + cols.shape[2]]
+        p0 += cols.shape[2]
+    qdd = np.linalg.solve(mass_matrix(th, d.added_mass_kg, d.added_mass_at_m), forces)
+    return d.sensor_matrix @ qdd
+
+
+def _residual(f: _Fitted, drives: Sequence[DriveRegressors], parts: Sequence[slice],
+              preds: Sequence[np.ndarray] | None = None) -> tuple[np.ndarray, float]:
+    """Residuals of the body accelerations on ``parts`` (time-major, drives concatenated)
+    and their NRMSE."""
+    res, meas = [], []
+    for k, (d, part) in enumerate(zip(drives, parts, strict=True)):
+        p = (_predict(f, d) if preds is None else preds[k])[:, part]
+        m = d.body_accel[:, part]
+        res.append((m - p).T.ravel())
+        meas.append(m.T.ravel())
+    r, m = np.concatenate(res), np.concatenate(meas)
+    return r, float(np.sqrt(np.mean(r**2) / np.mean(m**2)))
+
+
+def _physical(f: _Fitted) -> tuple[str, ...]:
+    """Effect parameters that leave their bounds (negative friction...) or are not
+    distinguishable from zero (|value| < 2 std): such a candidate is not chosen."""
+    bad = []
+    for term in f.terms:
+        cls = get_effect(term.effect)
+        for p in cls.params:
+            if not p.scales_with_force:
+                continue
+            i = f.names.index(f"{term.label}.{p.name}")
+            v, s = f.theta[i], math.sqrt(max(f.cov[i, i], 0.0))
+            if not (p.lower <= v <= p.upper) or abs(v) < 2.0 * s:
+                bad.append(f"{term.label}.{p.name}")
+    # the linear stiffness and damping of every corner must stay positive
+    for i in range(_K0, _C0 + 4):
+        if f.fitted[i] and f.theta[i] <= 0:
+            bad.append(PARAM_NAMES[i])
+    return tuple(bad)
+
+
+def _candidate(f: _Fitted, data: _Data, fit_parts, hold_parts) -> CandidateFit:
+    preds = [_predict(f, d) for d in data.drives]
+    res, nrmse_v = _residual(f, data.drives, hold_parts, preds)
+    _, nrmse_f = _residual(f, data.drives, fit_parts, preds)
+    values = {n: float(v) for n, v in zip(f.names, f.theta, strict=True) if np.isfinite(v)}
+    std = {n: float(math.sqrt(max(f.cov[i, i], 0.0))) for i, n in enumerate(f.names)
+           if np.isfinite(f.theta[i])}
+    return CandidateFit(effects=tuple(t.label for t in f.terms), values=values, std=std,
+                        nrmse_fit=nrmse_f, nrmse_validation=nrmse_v, residual_validation=res,
+                        n_params=int(np.sum(f.fitted)), at_bound=_physical(f),
+                        extra={"fitted": f})
+
+
+# --------------------------------------------------------------------------- result
+@dataclass
+class VehicleDiagnosis:
+    """Everything the full-vehicle diagnosis reports; :meth:`to_dict` is its JSON."""
+
+    findings: list[dict[str, Any]]
+    baseline: CandidateFit
+    chosen: CandidateFit
+    candidates: list[dict[str, Any]]
+    linear_model: dict[str, Any]
+    augmented_model: dict[str, Any]
+    sessions: list[dict[str, Any]]
+    band_hz: tuple[float, float]
+    method: str
+    warnings: list[dict[str, Any]] = field(default_factory=list)
+    cross_validation: list[dict[str, Any]] = field(default_factory=list)
+    fit: list[dict[str, Any]] = field(default_factory=list)
+    vehicle: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def verdict(self) -> str:
+        """``missing_physics`` when an effect is found, ``left_right_mismatch`` when only a
+        mismatch is, ``adequate`` otherwise."""
+        kinds = {f["effect"] for f in self.findings}
+        if kinds - {"left_right_mismatch"}:
+            return "missing_physics"
+        return "left_right_mismatch" if kinds else "adequate"
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON of the full-vehicle ``fielddiag diagnose`` (SI units in key names)."""
+        base, ch = self.baseline, self.chosen
+        return {
+            "mode": "full_vehicle",
+            "verdict": self.verdict,
+            "baseline": {"nrmse": base.nrmse_fit, "nrmse_validation": base.nrmse_validation},
+            "augmented": {"nrmse": ch.nrmse_fit, "nrmse_validation": ch.nrmse_validation},
+            "findings": self.findings,
+            "warnings": self.warnings,
+            "linear_model": self.linear_model,
+            "augmented_model": self.augmented_model,
+            "band_hz": list(self.band_hz),
+            "candidates": self.candidates,
+            "sessions": self.sessions,
+            "holdout": "last 30 % of every drive",
+            "cross_validation": self.cross_validation,
+            "fit": self.fit,
+            "linear_model_adequate": ch is base,
+            "method": self.method,
+            "vehicle": self.vehicle,
+        }
+
+
+def _model_dict(f: _Fitted) -> dict[str, Any]:
+    """Body and corners of a fitted model, each ``{"value", "std"}`` (the identification's
+    keys)."""
+    from fielddiag.vehicle.regression import WlsResult
+
+    p = N_PARAMS
+    w = WlsResult(f.theta[:p], f.cov[:p, :p], f.fitted[:p], np.ones(1), 1)
+    est = _derived(w)
+    out: dict[str, Any] = {k: est[k].to_dict() for k in (
+        "sprung_mass_kg", "cog_behind_front_axle_m", "cog_left_of_centre_m",
+        "pitch_inertia_kgm2", "roll_inertia_kgm2")}
+    out["corners"] = {}
+    for i, c in enumerate(CORNERS):
+        corner = {}
+        if f.fitted[_K0 + i]:
+            corner["stiffness_n_per_m"] = est[f"k_{c}"].to_dict()
+        if f.fitted[_C0 + i]:
+            corner["damping_ns_per_m"] = est[f"c_{c}"].to_dict()
+        out["corners"][c] = corner
+    out["anti_roll_stiffness_front_n_per_m"] = est["arb_f"].to_dict()
+    out["anti_roll_stiffness_rear_n_per_m"] = est["arb_r"].to_dict()
+    return out
+
+
+def _windows(base: _Fitted, chosen: _Fitted, drives: Sequence[DriveRegressors],
+             names: Sequence[str], window_s: float, top: int = 3) -> list[dict[str, Any]]:
+    """Windows where the chosen model lowers the body-acceleration residual most."""
+    out = []
+    for d, name in zip(drives, names, strict=True):
+        rb = np.sum((d.body_accel - _predict(base, d)) ** 2, axis=0)
+        rc = np.sum((d.body_accel - _predict(chosen, d)) ** 2, axis=0)
+        step = max(1, int(round(window_s * d.rate_hz)))
+        for i0 in range(0, d.n - step // 2, step):
+            sl = slice(i0, min(d.n, i0 + step))
+            mb, mc = rb[sl].mean(), rc[sl].mean()
+            out.append({"session": name, "start_s": i0 / d.rate_hz + d.start_s,
+                        "end_s": sl.stop / d.rate_hz + d.start_s,
+                        "residual_reduction": float(1.0 - mc / mb) if mb > 0 else 0.0})
+    out.sort(key=lambda w: -w["residual_reduction"])
+    return [w for w in out[:top] if w["residual_reduction"] > 0]
+
+
+def _effect_finding(term: _Term, f_all: _Fitted, base_cmp, base: CandidateFit,
+                    chosen: CandidateFit, nrmse_before: float, nrmse_after: float,
+                    where: list[dict[str, Any]]) -> dict[str, Any]:
+    params, stds = {}, {}
+    for p in term.linear_params():
+        i = f_all.names.index(f"{term.label}.{p}")
+        params[p] = float(f_all.theta[i])
+        stds[p] = float(math.sqrt(max(f_all.cov[i, i], 0.0)))
+    for k, v in term.shape:
+        params[k] = float(v)
+    cls = get_effect(term.effect)
+    shape = {p.name: params.pop(p.name) for p in cls.params if p.shape and p.name in params}
+    explained = 1.0 - chosen.mse_validation / base.mse_validation
+    place = term.place
+    where_words = f"at {place}" if len(term.corners) == 1 else f"on the {place} axle"
+    finding = {
+        "effect": term.effect,
+        ("corner" if len(term.corners) == 1 else "axle"): place,
+        "confidence": confidence(base_cmp, explained / max(explained, 0.25)),
+        "parameters": params,
+        "shape": shape,
+        "std": stds,
+        "where": {"time_windows_s": where, "corners": list(term.corners)},
+        "explanation": f"{where_words}: " + cls().explain(params, ""),
+        "nrmse_validation_before": nrmse_before,
+        "nrmse_validation_after": nrmse_after,
+    }
+    return finding
+
+
+def _mismatches(f: _Fitted, tol: float, z_min: float) -> list[dict[str, Any]]:
+    out = []
+    for axle, (left, right) in AXLES.items():
+        for quantity, c0, unit in (("damping", _C0, "ns_per_m"), ("stiffness", _K0, "n_per_m")):
+            i, j = c0 + CORNERS.index(left), c0 + CORNERS.index(right)
+            if not (f.fitted[i] and f.fitted[j]):
+                continue
+            a, b = f.theta[i], f.theta[j]
+            va, vb, cab = f.cov[i, i], f.cov[j, j], f.cov[i, j]
+            if not (a > 0 and b > 0):
+                continue
+            sd_diff = math.sqrt(max(va + vb - 2 * cab, 1e-300))
+            sd_log = math.sqrt(max(va / a**2 + vb / b**2 - 2 * cab / (a * b), 1e-300))
+            lr = math.log(a / b)
+            z_dep = (abs(lr) - math.log1p(tol)) / sd_log
+            if z_dep < z_min:
+                continue
+            weak, strong = (left, right) if a < b else (right, left)
+            vw, vs = (a, b) if a < b else (b, a)
+            ratio = vw / vs
+            z = (vw - vs) / sd_diff
+            out.append({
+                "effect": "left_right_mismatch",
+                "corner": weak,
+                "axle": axle,
+                "confidence": float(stats.norm.cdf(z_dep)),
+                "parameters": {"quantity": quantity, "ratio": ratio,
+                               f"this_corner_{unit}": float(vw),
+                               f"partner_{unit}": float(vs)},
+                "std": {"ratio": ratio * sd_log, f"this_corner_{unit}":
+                        math.sqrt(va if a < b else vb),
+                        f"partner_{unit}": math.sqrt(vb if a < b else va)},
+                "z": float(z),
+                "p_value": float(2 * stats.norm.sf(abs(z))),
+                "tolerance": tol,
+                "where": {"corners": [weak, strong]},
+                "explanation": (
+                    f"the {quantity} at {weak} is {100 * (1 - ratio):.0f} % lower than at "
+                    f"{strong} (ratio {ratio:.2f} +- {ratio * sd_log:.2f}, z = {z:.1f}): "
+                    + ("check the damper at " + weak + " for wear or leaks"
+                       if quantity == "damping" else
+                       "check the spring at " + weak + " for sag or breakage, and the ride "
+                       "height")),
+            })
+    return out
+
+
+# --------------------------------------------------------------------------- main
+@single_threaded_blas
+def diagnose_vehicle(
+    before: VehicleRecording,
+    after: VehicleRecording,
+    added_mass_kg: float | None = None,
+    added_mass_at_m: tuple[float, float] | None = None,
+    validate: Sequence[VehicleRecording] = (),
+    config: VehicleDiagnoseConfig = VehicleDiagnoseConfig(),
+    progress: Callable[[str], None] | None = None,
+) -> VehicleDiagnosis:
+    """Diagnose a full vehicle per corner from a drive before and one after adding a mass.
+
+    Parameters
+    ----------
+    before, after : VehicleRecording
+        The car as it is, and with a known mass added on the body.
+    added_mass_kg : float or None
+        Added mass [kg]; default ``after.added_mass_kg - before.added_mass_kg``.
+    added_mass_at_m : (x_m, y_m) or None
+        Where it sits [m]; default ``after.added_mass_at_m``.
+    validate : sequence of VehicleRecording
+        Other drives of the same car (another manoeuvre) on which the linear and the
+        chosen model are also scored.
+    config : VehicleDiagnoseConfig
+    progress : callable or None
+        Called with a short message at each stage.
+
+    Returns
+    -------
+    VehicleDiagnosis
+
+    Raises
+    ------
+    InvalidValueError
+        No positive added mass, or no position for it, or a bad setting.
+    FieldDiagError
+        Drives of cars with different geometry.
+    InsufficientDataError
+        A drive too short.
+    """
+    say = progress or (lambda _m: None)
+    if added_mass_kg is None:
+        added_mass_kg = float(after.added_mass_kg) - float(before.added_mass_kg)
+    if not (math.isfinite(added_mass_kg) and added_mass_kg > 0):
+        raise InvalidValueError(
+            f"added mass {added_mass_kg!r} kg: the second drive needs a known mass added on "
+            "the body; give --added-mass KG (> 0)")
+    at = added_mass_at_m if added_mass_at_m is not None else after.added_mass_at_m
+    if at is None or len(at) != 2 or not all(math.isfinite(float(v)) for v in at):
+        raise InvalidValueError("where the added mass sits is unknown; give --added-mass-at "
+                                "X_M,Y_M (metres behind the front axle, metres left of centre)")
+    at = (float(at[0]), float(at[1]))
+    if not 0.05 <= config.holdout_fraction <= 0.6:
+        raise InvalidValueError("holdout_fraction must lie in 0.05..0.6")
+    unknown = [e for e in config.effects if e not in EFFECTS]
+    if unknown:
+        raise InvalidValueError(f"unknown effect(s) {unknown}; choose from "
+                                f"{', '.join(DEFAULT_EFFECTS)}")
+    for other in (after, *validate):
+        if other.geometry != before.geometry:
+            raise FieldDiagError(
+                f"{other.name or other.label or 'a drive'} has another vehicle geometry than "
+                f"{before.name or 'the before drive'}; all drives must be of the same car")
+    _COLUMNS.clear()
+    _ROWS.clear()
+    _RAW.clear()
+    try:
+        return _diagnose(before, after, added_mass_kg, at, validate, config, say)
+    finally:
+        _COLUMNS.clear()
+        _ROWS.clear()
+        _RAW.clear()
+
+
+def _diagnose(before: VehicleRecording, after: VehicleRecording, added_mass_kg: float,
+              at: tuple[float, float], validate: Sequence[VehicleRecording],
+              config: VehicleDiagnoseConfig, say: Callable[[str], None]) -> VehicleDiagnosis:
+    icfg = config.identify
+    say("preparing the drives (integration, band-pass)")
+    drives = []
+    noise: dict[int, tuple[np.ndarray, np.ndarray]] | None = (
+        {} if icfg.noise_compensation else None)
+    for k, (rec, dm, pos) in enumerate(((before, 0.0, (0.0, 0.0)),
+                                        (after, added_mass_kg, at))):
+        d = prepare_drive(rec, icfg)
+        d.added_mass_kg, d.added_mass_at_m = dm, pos
+        d.start_s = _start_s(rec, icfg)
+        _RAW[id(d)] = (d, _raw_motion(rec, icfg))
+        drives.append(d)
+        if noise is not None:  # as the identification (the hubs taken as noisy as the body)
+            noise.update(noise_normal_equations(d, [body_noise_std_mps2(rec)] * 8,
+                                                filter_response(rec, icfg), 3 * k,
+                                                car_accel_noise_std_mps2(rec)))
+    data = _Data(drives, noise, [int(round((1 - config.holdout_fraction) * d.n))
+                                 for d in drives])
+    fit_parts = [slice(0, s) for s in data.split]
+    hold_parts = [slice(s, None) for s in data.split]
+    all_parts = [slice(None)] * len(drives)
+    base_fitted = np.ones(N_PARAMS, bool)
+    for col, sig in ((16, "a_long"), (17, "a_lat")):
+        rms = max(float(np.sqrt(np.mean(getattr(d, sig) ** 2))) for d in drives)
+        base_fitted[col] = rms > 0.02
+    block = max(1, int(round(icfg.block_s * drives[0].rate_hz)))
+
+    def fit(terms: Sequence[_Term], parts=fit_parts) -> _Fitted:
+        return _fit(data, terms, parts, base_fitted, block)
+
+    def best_shape(screen: _Screen, prefix: tuple[_Term, ...], effect: str,
+                   corners: tuple[str, ...]) -> CandidateFit:
+        r = np.concatenate([_RAW[id(d)][1].r[CORNERS.index(c)] for d in drives
+                            for c in corners])
+        best = None
+        for shape in _shape_grid(effect, r):
+            f = screen.fit((*prefix, _Term(effect, corners, shape)))
+            cand = _candidate(f, data, fit_parts, hold_parts)
+            if best is None or cand.nrmse_fit < best.nrmse_fit:
+                best = cand
+        return best
+
+    say("fitting the linear model")
+    base_fit = fit(())
+    base = _candidate(base_fit, data, fit_parts, hold_parts)
+    # effects act on the travel from the unloaded car's rest: the drive with the mass added
+    # rests lower by the static sag the linear model gives
+    for d in drives:
+        raw = _RAW[id(d)][1]
+        raw.r = raw.r + _static_sag_m(base_fit.theta, d)[:, None]
+    screen = _Screen(data, fit_parts, base_fitted, base_fit.group_sigma)
+    places = [(c,) for c in CORNERS]
+    if config.axle_candidates:
+        places += list(AXLES.values())
+    say(f"trying {len(config.effects)} effects at {len(places)} places")
+    tried: list[CandidateFit] = []
+    chosen = base
+    prefix: tuple[_Term, ...] = ()
+    for _round in range(config.max_effects):
+        used = {c for t in prefix for c in t.corners}
+        screened = []
+        for e in config.effects:
+            for pl in places:
+                if used & set(pl):
+                    continue
+                screened.append(best_shape(screen, prefix, e, pl))
+        # the most promising few fitted exactly (reweighted, sandwich covariance)
+        promising = sorted((c for c in screened
+                            if compare(chosen, c).beats(c.n_params - chosen.n_params)),
+                           key=lambda c: c.mse_validation)[:config.exact_fits]
+        cands = [_candidate(fit(c.extra["fitted"].terms), data, fit_parts, hold_parts)
+                 for c in promising]
+        tried.extend(cands)
+        tried.extend(c for c in screened if c not in promising)
+        if chosen is base:
+            sel = select_model(base, cands)
+            nxt = sel.chosen if sel.chosen is not base else None
+        else:
+            ok = [c for c in cands if c.physical
+                  and compare(chosen, c).beats(c.n_params - chosen.n_params)
+                  and compare(base, c).beats(c.n_params - base.n_params)]
+            nxt = min(ok, key=lambda c: c.mse_validation) if ok else None
+        if nxt is None:
+            break
+        chosen = nxt
+        prefix = chosen.extra["fitted"].terms
+        say("chosen so far: " + ", ".join(chosen.effects))
+    say("refitting on all the data")
+    base_all = fit((), all_parts)
+    chosen_all = fit(prefix, all_parts) if prefix else base_all
+    names = [rec.name or rec.label or ("before", "after")[k]
+             for k, rec in enumerate((before, after))]
+    findings = []
+    nrmse_prev = base.nrmse_validation
+    base_cmp = compare(base, chosen) if prefix else None
+    for k, term in enumerate(prefix):
+        upto = fit(prefix[:k + 1]) if k + 1 < len(prefix) else chosen.extra["fitted"]
+        _, nrmse_after = _residual(upto, drives, hold_parts)
+        single = fit((term,), all_parts)
+        where = _windows(base_all, single, drives, names, config.window_s)
+        findings.append(_effect_finding(term, chosen_all, base_cmp, base, chosen, nrmse_prev,
+                                        nrmse_after, where))
+        nrmse_prev = nrmse_after
+    findings.extend(_mismatches(chosen_all, config.mismatch_tolerance, config.mismatch_z))
+    cv = []
+    for k, rec in enumerate(validate):
+        d = prepare_drive(rec, icfg)
+        _RAW[id(d)] = (d, _raw_motion(rec, icfg))
+        if rec.added_mass_kg:
+            if rec.added_mass_at_m is None:
+                raise InvalidValueError(f"{rec.name or 'a validate drive'} carries an added "
+                                        "mass but not where it sits; record added_mass_at_m")
+            d.added_mass_at_m = tuple(float(v) for v in rec.added_mass_at_m)
+        _, nb = _residual(base_all, [d], [slice(None)])
+        _, nc = _residual(chosen_all, [d], [slice(None)])
+        cv.append({"session": rec.name or rec.label or f"validate_{k + 1}",
+                   "nrmse_linear": nb, "nrmse_augmented": nc})
+    lo, hi = icfg.band_hz
+    method = (
+        "full-vehicle equation-error diagnosis: drives prepared as for the identification "
+        f"(band {lo:g}-{hi:g} Hz, {drives[0].rate_hz:g} Hz), the 3 body equations linear in "
+        "18 parameters plus, per candidate, a library effect's force at one corner (or on "
+        "both corners of an axle) with the corner's lever arms; weighted least squares "
+        f"(noise-bias compensated) on the first {100 * (1 - config.holdout_fraction):.0f} % "
+        "of each drive, body accelerations predicted on the last "
+        f"{100 * config.holdout_fraction:.0f} %; the simplest model that predicts them "
+        "significantly better (paired block t >= 3, gain >= 2 % per parameter, parameters "
+        f"physical and > 2 std) chosen, greedily up to {config.max_effects} effects; "
+        "parameters refitted on all the data; left/right mismatch when the ratio of an "
+        f"axle's damping or stiffness departs from 1 by more than "
+        f"{100 * config.mismatch_tolerance:.0f} % with one-sided z >= {config.mismatch_z:g}")
+    cands_json = [{"effects": list(c.effects), "nrmse_validation": c.nrmse_validation,
+                   "t_vs_linear": compare(base, c).t, "physical": c.physical,
+                   "parameters": {k: v for k, v in c.values.items() if "@" in k}}
+                  for c in tried]
+    cands_json.sort(key=lambda c: c["nrmse_validation"])
+    sessions = [{"label": rec.label or ("before", "after")[k], "name": names[k],
+                 "added_mass_kg": float((0.0, added_mass_kg)[k]),
+                 "added_mass_at_m": None if k == 0 else list(at),
+                 "duration_s": rec.duration_s} for k, rec in enumerate((before, after))]
+    return VehicleDiagnosis(
+        findings=findings, baseline=base, chosen=chosen, candidates=cands_json[:40],
+        linear_model=_model_dict(base_all), augmented_model=_model_dict(chosen_all),
+        sessions=sessions, band_hz=(lo, hi), method=method, cross_validation=cv,
+        fit=_fit_traces(base_all, chosen_all, drives, names, hold_parts),
+        vehicle=before.geometry.to_dict())
+
+
+def _start_s(rec: VehicleRecording, cfg: VehicleIdentifyConfig) -> float:
+    """Time of the first prepared sample in the recording [s] (the trimmed filter ends of
+    :func:`~fielddiag.vehicle.identify.prepare_drive`)."""
+    fs = float(rec.sample_rate_hz)
+    trim = int(round((4.5 / cfg.band_hz[0] if cfg.trim_s is None else cfg.trim_s) * fs))
+    return trim / fs
+
+
+def _fit_traces(base: _Fitted, chosen: _Fitted, drives: Sequence[DriveRegressors],
+                names: Sequence[str], hold_parts, max_points: int = 1500) -> list[dict]:
+    """Held-out traces of the mean body acceleration: recorded, linear, augmented."""
+    out = []
+    for d, name, part in zip(drives, names, hold_parts, strict=True):
+        t = d.start_s + np.arange(d.n) / d.rate_hz
+        pb, pc = _predict(base, d), _predict(chosen, d)
+        t, m, pb, pc = t[part], d.body_accel[:, part], pb[:, part], pc[:, part]
+        step = max(1, t.size // max_points)
+        out.append({"session": name, "time_s": t[::step].tolist(),
+                    "recorded": m.mean(axis=0)[::step].tolist(),
+                    "simulated_linear": pb.mean(axis=0)[::step].tolist(),
+                    "simulated_augmented": pc.mean(axis=0)[::step].tolist()})
+    return out
+
+
+def is_full_vehicle_pair(paths: Sequence[Any]) -> bool:
+    """True when every session holds all eight full-vehicle accelerometer roles."""
+    from fielddiag.vehicle.recording import is_full_vehicle_session
+
+    return bool(paths) and all(is_full_vehicle_session(p) for p in paths)
+
+
+
+def format_vehicle_summary(out: dict[str, Any]) -> str:
+    """Readable text of a full-vehicle diagnosis dict (:meth:`VehicleDiagnosis.to_dict`).
+
+    Parameters
+    ----------
+    out : dict
+        The JSON of the full-vehicle diagnosis.
+
+    Returns
+    -------
+    str
+    """
+    lines = [f"full-vehicle diagnosis: {out['verdict']}"]
+    b, a = out["baseline"], out["augmented"]
+    lines.append(f"  held-out NRMSE of the body accelerations: linear "
+                 f"{b['nrmse_validation']:.4f}, chosen model {a['nrmse_validation']:.4f}")
+    if not out["findings"]:
+        lines.append("  no finding: the linear full-vehicle model is adequate and the axles "
+                     "are balanced")
+    for f in out["findings"]:
+        place = f.get("corner") or f"{f.get('axle')} axle"
+        params = ", ".join(
+            f"{k} = {v:.4g}" + (f" +- {f['std'][k]:.2g}" if k in f.get("std", {}) else "")
+            if isinstance(v, (int, float)) else f"{k} = {v}"
+            for k, v in f["parameters"].items())
+        lines.append(f"  [{place}] {f['effect']}: {params}")
+        lines.append(f"      {f['explanation']}")
+        if "nrmse_validation_before" in f:
+            lines.append(f"      held-out NRMSE {f['nrmse_validation_before']:.4f} -> "
+                         f"{f['nrmse_validation_after']:.4f}")
+        for w in f.get("where", {}).get("time_windows_s", [])[:3]:
+            lines.append(f"      acts most in {w['session']} {w['start_s']:.0f}-"
+                         f"{w['end_s']:.0f} s (residual -{100 * w['residual_reduction']:.0f} %)")
+    m = out["linear_model"]
+    lines.append("  body: mass {:.1f} +- {:.2g} kg, CoG {:.3f} m behind the front axle, {:.3f} m "
+                 "left; pitch inertia {:.0f} kg m^2, roll inertia {:.0f} kg m^2".format(
+                     m["sprung_mass_kg"]["value"], m["sprung_mass_kg"]["std"],
+                     m["cog_behind_front_axle_m"]["value"], m["cog_left_of_centre_m"]["value"],
+                     m["pitch_inertia_kgm2"]["value"], m["roll_inertia_kgm2"]["value"]))
+    for c, d in out["augmented_model"]["corners"].items():
+        parts = [f"{k} {v['value']:.4g} +- {v['std']:.2g}" for k, v in d.items()]
+        lines.append(f"  {c}: " + ", ".join(parts))
+    for cv in out.get("cross_validation", []):
+        lines.append(f"  {cv['session']}: NRMSE linear {cv['nrmse_linear']:.4f}, chosen "
+                     f"{cv['nrmse_augmented']:.4f}")
+    return "\n".join(lines)

@@ -1,0 +1,356 @@
+"""The full-vehicle model written linear in its parameters, and its weighted least squares.
+
+Pure numerics over arrays (no I/O). Conventions: :mod:`fielddiag.vehicle.geometry` and
+:mod:`fielddiag.vehicle.dynamics`. With the body's heave, pitch and roll ``q`` at the
+origin, the strut points' motion ``z_i = [1, x_i, y_i] q``, the suspension extensions
+``r_i = z_i - z_hub,i`` and the added mass ``dM`` at ``(x_a, y_a)`` (its acceleration
+``a_a = [1, x_a, y_a] q''``), the three body equations are, per sample::
+
+    M q0'' + Sx q1'' + Sy q2''          + sum_i     (K_i r_i + C_i r_i')          = -dM a_a
+    Sx q0'' + Jp q1'' + Jpr q2''        + sum_i x_i (K_i r_i + C_i r_i') + Hp a_long = -dM x_a a_a
+    Sy q0'' + Jpr q1'' + Jr q2''        + sum_i y_i (K_i r_i + C_i r_i')
+        + t_f k_f (r_fl - r_fr) + t_r k_r (r_rl - r_rr) - Hr a_lat                   = -dM y_a a_a
+
+linear in ``theta = [M, Sx, Sy, Jp, Jr, Jpr, K_fl..K_rr, C_fl..C_rr, k_f, k_r, Hp, Hr]``
+(first moments ``Sx = M x_cg``, ``Sy = M y_cg``; inertias about the origin ``Jp = I_p +
+M x_cg^2``, ``Jr = I_r + M y_cg^2``, ``Jpr = M x_cg y_cg`` (+ a product of inertia);
+``Hp``, ``Hr`` the pitch and roll moment arms times the mass, ``M h``). The drive without
+added mass has a zero right-hand side; the known ``dM`` fixes the scale.
+
+Weighted least squares (Gautier, seed 003): an ordinary fit, then each equation of each
+drive weighted by the inverse of its residual standard deviation and solved again. The
+covariance is a delete-a-block jackknife over time blocks (the band-passed residuals are
+correlated in time, so the textbook ``sigma^2 (W^T W)^-1`` would be too optimistic, and
+the noise compensation makes the estimator nonlinear in the data); optionally the
+jackknife's bias estimate is removed from the estimate.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from fielddiag.channels import CORNERS
+
+__all__ = ["PARAM_NAMES", "DriveRegressors", "WlsResult", "equation_rows", "predict_body_accel",
+           "regressors", "weighted_least_squares"]
+
+#: The parameters of the linear-in-parameters model, in order.
+PARAM_NAMES = ("mass_kg", "first_moment_x_kgm", "first_moment_y_kgm", "pitch_inertia_origin_kgm2",
+               "roll_inertia_origin_kgm2", "product_inertia_origin_kgm2",
+               *(f"stiffness_{c}_n_per_m" for c in CORNERS),
+               *(f"damping_{c}_ns_per_m" for c in CORNERS),
+               "anti_roll_front_n_per_m", "anti_roll_rear_n_per_m",
+               "pitch_arm_kgm", "roll_arm_kgm")
+N_PARAMS = len(PARAM_NAMES)
+
+
+@dataclass
+class DriveRegressors:
+    """One drive's band-passed motion at the analysis rate.
+
+    Attributes
+    ----------
+    qdd : ndarray (3, n)
+        Body heave/pitch/roll accelerations at the origin.
+    r, rd : ndarray (4, n)
+        Suspension extension [m] and rate [m/s] per corner.
+    a_long, a_lat : ndarray (n,)
+        Car accelerations [m/s^2] (band-passed like the rest).
+    body_accel : ndarray (4, n)
+        The body sensors' band-passed accelerations [m/s^2] (for predictions).
+    corner_x, corner_y : ndarray (4,)
+        Strut positions [m].
+    sensor_matrix : ndarray (4, 3)
+        Body sensors' ``[1, x, y]``.
+    added_mass_kg : float
+    added_mass_at_m : (float, float)
+    rate_hz : float
+        Analysis rate [Hz].
+    wheel_disp, wheel_vel : ndarray (4, n) or None
+        Hub displacement [m] and velocity [m/s] (band-passed; for simulating the body).
+    """
+
+    qdd: np.ndarray
+    r: np.ndarray
+    rd: np.ndarray
+    a_long: np.ndarray
+    a_lat: np.ndarray
+    body_accel: np.ndarray
+    corner_x: np.ndarray
+    corner_y: np.ndarray
+    sensor_matrix: np.ndarray
+    added_mass_kg: float
+    added_mass_at_m: tuple[float, float]
+    rate_hz: float
+    wheel_disp: np.ndarray | None = None
+    wheel_vel: np.ndarray | None = None
+
+    @property
+    def n(self) -> int:
+        """Samples."""
+        return int(self.qdd.shape[1])
+
+
+def equation_rows(d: DriveRegressors) -> tuple[np.ndarray, np.ndarray]:
+    """Regressor ``A`` (3, n, N_PARAMS) and right-hand side ``b`` (3, n) of one drive.
+
+    Returns
+    -------
+    A : ndarray (3, n, N_PARAMS)
+        Rows of the heave, pitch and roll equations.
+    b : ndarray (3, n)
+        ``-dM [1, x_a, y_a] a_a``.
+    """
+    n = d.n
+    a = np.zeros((3, n, N_PARAMS))
+    q0, q1, q2 = d.qdd
+    x, y = d.corner_x, d.corner_y
+    lever = np.array([np.ones(4), x, y])  # (3, 4)
+    a[0, :, 0], a[0, :, 1], a[0, :, 2] = q0, q1, q2
+    a[1, :, 1], a[1, :, 3], a[1, :, 5] = q0, q1, q2
+    a[2, :, 2], a[2, :, 5], a[2, :, 4] = q0, q1, q2
+    for e in range(3):
+        a[e, :, 6:10] = (lever[e][:, None] * d.r).T
+        a[e, :, 10:14] = (lever[e][:, None] * d.rd).T
+    tf = y[0] - y[1]
+    tr = y[2] - y[3]
+    a[2, :, 14] = tf * (d.r[0] - d.r[1])
+    a[2, :, 15] = tr * (d.r[2] - d.r[3])
+    a[1, :, 16] = d.a_long
+    a[2, :, 17] = -d.a_lat
+    xa, ya = d.added_mass_at_m
+    acc_a = q0 + xa * q1 + ya * q2
+    b = -d.added_mass_kg * np.array([acc_a, xa * acc_a, ya * acc_a])
+    return a, b
+
+
+def mass_matrix(theta: np.ndarray, added_mass_kg: float = 0.0,
+                added_mass_at_m: tuple[float, float] = (0.0, 0.0)) -> np.ndarray:
+    """The body's (3, 3) mass matrix about the origin from ``theta`` plus the added mass."""
+    m, sx, sy, jp, jr, jpr = theta[:6]
+    dm, (xa, ya) = added_mass_kg, added_mass_at_m
+    return np.array([[m + dm, sx + dm * xa, sy + dm * ya],
+                     [sx + dm * xa, jp + dm * xa * xa, jpr + dm * xa * ya],
+                     [sy + dm * ya, jpr + dm * xa * ya, jr + dm * ya * ya]])
+
+
+def predict_body_accel(theta: np.ndarray, d: DriveRegressors) -> np.ndarray:
+    """The body sensors' accelerations the model predicts from the measured suspension
+    motion and car accelerations (equation error: the seed's ``W X`` against ``Y``).
+
+    Returns
+    -------
+    ndarray (4, n)
+        Predicted band-passed body accelerations [m/s^2].
+    """
+    a, _ = equation_rows(d)
+    th = np.nan_to_num(np.asarray(theta, float))
+    # generalised forces: everything but the inertial terms, moved to the right
+    inert = np.zeros_like(th)
+    inert[:6] = th[:6]
+    forces = -(a @ (th - inert))  # (3, n)
+    xa, ya = d.added_mass_at_m
+    qdd = np.linalg.solve(mass_matrix(th, d.added_mass_kg, (xa, ya)), forces)
+    return d.sensor_matrix @ qdd
+
+
+def regressors(drives: Sequence[DriveRegressors]) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                                                          np.ndarray]:
+    """Stack drives: rows ``A`` (N, N_PARAMS), ``b`` (N,), equation-group id and time index.
+
+    Rows are ordered drive, equation, sample; the group id is ``3 * drive + equation``;
+    the time index counts samples within the drive.
+    """
+    rows, rhs, group, tidx = [], [], [], []
+    for k, d in enumerate(drives):
+        a, b = equation_rows(d)
+        for e in range(3):
+            rows.append(a[e])
+            rhs.append(b[e])
+            group.append(np.full(d.n, 3 * k + e))
+            tidx.append(np.arange(d.n) + 10**9 * k)
+    return np.vstack(rows), np.concatenate(rhs), np.concatenate(group), np.concatenate(tidx)
+
+
+@dataclass
+class WlsResult:
+    """Weighted least-squares estimate.
+
+    Attributes
+    ----------
+    theta : ndarray (N_PARAMS,)
+        Estimates (NaN for parameters not fitted).
+    cov : ndarray (N_PARAMS, N_PARAMS)
+        Covariance (zero rows/columns for parameters not fitted).
+    fitted : ndarray of bool
+        Which parameters were fitted.
+    group_sigma : ndarray
+        Residual standard deviation of each equation group (unweighted units).
+    n_blocks : int
+        Time blocks of the jackknife.
+    scale_std : float
+        Relative systematic uncertainty of the common scale included in ``cov``.
+    """
+
+    theta: np.ndarray
+    cov: np.ndarray
+    fitted: np.ndarray
+    group_sigma: np.ndarray
+    n_blocks: int
+    scale_std: float = 0.0
+
+    @property
+    def std(self) -> np.ndarray:
+        """Standard deviations (NaN where not fitted)."""
+        s = np.sqrt(np.clip(np.diag(self.cov), 0.0, None))
+        return np.where(self.fitted, s, np.nan)
+
+    def correlation(self) -> np.ndarray:
+        """Correlation matrix of the fitted parameters (NaN elsewhere)."""
+        s = self.std
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return self.cov / np.outer(s, s)
+
+
+def weighted_least_squares(a: np.ndarray, b: np.ndarray, group: np.ndarray, tidx: np.ndarray,
+                           fitted: np.ndarray, block_samples: int,
+                           noise: dict[int, tuple[np.ndarray, np.ndarray]] | None = None,
+                           bias_correction: bool = False) -> WlsResult:
+    """Solve ``A theta = b`` by weighted least squares with a block-jackknife covariance.
+
+    Parameters
+    ----------
+    a, b, group, tidx : ndarray
+        From :func:`regressors`.
+    fitted : ndarray of bool
+        Columns to fit (the others are held at 0).
+    block_samples : int
+        Samples per time block of the jackknife (all three equations of a block together).
+    noise : dict group -> (N_AA, N_Ab) or None
+        The expected contribution of the sensor noise to each equation group's
+        (unweighted) normal equations, ``E[A_n^T A_n]`` (N_PARAMS, N_PARAMS) and
+        ``E[A_n^T b_n]`` (N_PARAMS,) (:func:`noise_normal_equations`). The regressors are
+        measured with noise (errors in variables), which biases least squares towards
+        zero; these are subtracted (bias-compensated least squares).
+    bias_correction : bool
+        Subtract the jackknife's estimate of the estimator's bias.
+
+    Returns
+    -------
+    WlsResult
+    """
+    cols = np.flatnonzero(fitted)
+    af = a[:, cols]
+    scale = np.linalg.norm(af, axis=0)
+    scale[scale == 0] = 1.0
+    a_s = af / scale
+    def solve(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        aw, bw = a_s * w[:, None], b * w
+        lhs, rhs = aw.T @ aw, aw.T @ bw
+        for g, (naa, nab) in (noise or {}).items():
+            wg2 = float(w[np.argmax(group == g)]) ** 2
+            lhs = lhs - wg2 * naa[np.ix_(cols, cols)] / np.outer(scale, scale)
+            rhs = rhs - wg2 * nab[cols] / scale
+        return np.linalg.solve(lhs, rhs), lhs
+
+    w = np.ones(b.size)
+    th_s, normal = solve(w)
+    groups = np.unique(group)
+    sigma = np.ones(groups.max() + 1)
+    for _ in range(2):  # residuals -> per-equation weights -> WLS (once more with its residuals)
+        e = b - a_s @ th_s
+        for g in groups:
+            m = group == g
+            sigma[g] = max(float(np.sqrt(np.mean(e[m] ** 2))), 1e-300)
+        w = 1.0 / sigma[group]
+        th_s, normal = solve(w)
+    aw, bw = a_s * w[:, None], b * w
+    rhs_full = aw.T @ bw
+    for g, (_, nab) in (noise or {}).items():
+        rhs_full = rhs_full - (1.0 / sigma[g]) ** 2 * nab[cols] / scale
+    # delete-a-block jackknife: blocks of whole seconds in each drive, all three equations
+    block = tidx // max(1, block_samples)  # drives are apart by 1e9 samples
+    ub, inv = np.unique(block, return_inverse=True)
+    n_g = {g: int(np.sum(group == g)) for g in groups}
+    reps = []
+    for i in range(ub.size):
+        m = inv == i
+        lhs_i = normal - aw[m].T @ aw[m]
+        rhs_i = rhs_full - aw[m].T @ bw[m]
+        for g, (naa, nab) in (noise or {}).items():
+            frac = np.sum(m & (group == g)) / n_g[g]
+            if frac:
+                wg2 = (1.0 / sigma[g]) ** 2
+                lhs_i = lhs_i + frac * wg2 * naa[np.ix_(cols, cols)] / np.outer(scale, scale)
+                rhs_i = rhs_i + frac * wg2 * nab[cols] / scale
+        reps.append(np.linalg.solve(lhs_i, rhs_i))
+    reps_a = np.array(reps)
+    nb = ub.size
+    mean_rep = reps_a.mean(axis=0)
+    if bias_correction:
+        th_s = th_s - (nb - 1) * (mean_rep - th_s)  # jackknife bias correction
+    dev = reps_a - mean_rep
+    cov_s = (nb - 1) / nb * dev.T @ dev
+    theta = np.full(a.shape[1], np.nan)
+    theta[cols] = th_s / scale
+    cov = np.zeros((a.shape[1], a.shape[1]))
+    cov[np.ix_(cols, cols)] = cov_s / np.outer(scale, scale)
+    return WlsResult(theta, cov, np.asarray(fitted, bool), sigma, int(nb))
+
+
+def noise_normal_equations(d: DriveRegressors, sigma_mps2: Sequence[float],
+                           response: np.ndarray, first_group: int,
+                           car_sigma_mps2: tuple[float, float] = (0.0, 0.0)
+                           ) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """Expected share of white accelerometer noise in one drive's normal equations.
+
+    Every regressor is a linear map of the eight channels' noise through three filters
+    (acceleration, velocity, displacement: the processing's transfer functions), so its
+    expected products follow from the filters' lag-0 cross-correlations ``response``.
+    The maps are found by running :func:`equation_rows` on unit inputs.
+
+    Parameters
+    ----------
+    d : DriveRegressors
+        The drive (geometry, added mass, number of samples).
+    sigma_mps2 : sequence of 8 float
+        Noise std of the hub (fl, fr, rl, rr) and body (fl, fr, rl, rr) channels [m/s^2].
+    response : ndarray (3, 3)
+        ``R[f, g] = sum_k h_f[k] h_g[k]`` of the acceleration, velocity and displacement
+        filters for unit white noise.
+    first_group : int
+        Group id of this drive's heave equation (``3 * drive``).
+    car_sigma_mps2 : (float, float)
+        Noise std of the car's longitudinal and lateral acceleration signals [m/s^2]
+        (they are regressors of the pitch and roll moment arms).
+
+    Returns
+    -------
+    dict group -> (E[A^T A], E[A^T b])
+        Sums over the drive's samples, unweighted.
+    """
+    nb = 24  # 8 channels x 3 filters
+    unit = np.eye(nb).reshape(8, 3, nb)  # [channel, filter, basis]
+    wheel, body = unit[:4], unit[4:]
+    pinv = np.linalg.pinv(d.sensor_matrix)
+    cm = np.column_stack([np.ones(4), d.corner_x, d.corner_y])
+    basis = DriveRegressors(
+        qdd=pinv @ body[:, 0], r=cm @ pinv @ body[:, 2] - wheel[:, 2],
+        rd=cm @ pinv @ body[:, 1] - wheel[:, 1], a_long=np.zeros(nb), a_lat=np.zeros(nb),
+        body_accel=body[:, 0], corner_x=d.corner_x, corner_y=d.corner_y,
+        sensor_matrix=d.sensor_matrix, added_mass_kg=d.added_mass_kg,
+        added_mass_at_m=d.added_mass_at_m, rate_hz=d.rate_hz)
+    a, b = equation_rows(basis)  # (3, 24, P), (3, 24)
+    s = np.zeros((nb, nb))
+    for ch in range(8):
+        idx = slice(3 * ch, 3 * ch + 3)
+        s[idx, idx] = float(sigma_mps2[ch]) ** 2 * response
+    out = {}
+    for e in range(3):
+        out[first_group + e] = (d.n * a[e].T @ s @ a[e], d.n * a[e].T @ s @ b[e])
+    out[first_group + 1][0][16, 16] += d.n * car_sigma_mps2[0] ** 2 * response[0, 0]
+    out[first_group + 2][0][17, 17] += d.n * car_sigma_mps2[1] ** 2 * response[0, 0]
+    return out
