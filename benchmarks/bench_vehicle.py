@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from fielddiag.vehicle import random_vehicle, read_vehicle_recording, simulate_vehicle
-from fielddiag.vehicle.identify import identify_vehicle
+from fielddiag.vehicle.identify import VehicleIdentifyConfig, identify_vehicle
 from fielddiag.vehicle.writer import write_vehicle_session
 
 BUDGET = {"sprung_mass_kg": ("rel", 0.03), "cog_behind_front_axle_m": ("abs", 0.02),
@@ -58,7 +58,8 @@ def _budget(name: str) -> tuple[str, float]:
     raise KeyError(name)
 
 
-def one_case(seed: int, duration_s: float) -> dict:
+def one_case(seed: int, duration_s: float,
+             config: VehicleIdentifyConfig | None = None) -> dict:
     """Simulate and identify one random car; errors and z-scores per quantity."""
     rng = np.random.default_rng(seed)
     car = random_vehicle(rng)
@@ -79,7 +80,8 @@ def one_case(seed: int, duration_s: float) -> dict:
     val = simulate_vehicle(car, duration_s=60.0, seed=int(seeds[2]), manoeuvre=man, **common)
     val.name = man
     t0 = time.perf_counter()
-    res = identify_vehicle(before, after, dm, at, validate=[val])
+    res = identify_vehicle(before, after, dm, at, validate=[val],
+                           config=config or VehicleIdentifyConfig())
     elapsed = time.perf_counter() - t0
     truth = _truth_flat(car.truth())
     rows = {}
@@ -118,17 +120,22 @@ def main() -> None:
     ap.add_argument("--n", type=int, default=30)
     ap.add_argument("--duration", type=float, default=180.0)
     ap.add_argument("--json", default=None)
+    ap.add_argument("--refine", action="store_true", help="try the output-error refinement")
+    ap.add_argument("--doubt", type=float, default=VehicleIdentifyConfig.compensation_doubt,
+                    help="compensation_doubt of the identification")
     ap.add_argument("--rates", default="500,1000",
                     help="sample rates to draw from, Hz (comma-separated)")
     args = ap.parse_args()
     RATES[:] = [float(x) for x in args.rates.split(",")]
     print(__doc__.split("Usage:")[0].strip())
     print(f"\nseed {args.seed}, {args.n} cases, {args.duration:g} s drives\n")
+    config = VehicleIdentifyConfig(refine=args.refine, compensation_doubt=args.doubt)
+    print(f"identification settings: {config}")
     simulate_vehicle(duration_s=1.0)  # compile once
     cases = []
     t_all = time.perf_counter()
     for i in range(args.n):
-        cases.append(one_case(args.seed * 100003 + i, args.duration))
+        cases.append(one_case(args.seed * 100003 + i, args.duration, config))
         c = cases[-1]
         worst = max(c["rows"].items(), key=lambda kv: abs(kv[1]["z"]))
         print(f"case {i:3d}: {c['rate_hz']:5.0f} Hz road {c['road']} noise {c['noise']:.3f} "

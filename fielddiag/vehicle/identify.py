@@ -119,7 +119,7 @@ class VehicleIdentifyConfig:
     block_s: float = 5.0
     passes: int = 1
     jackknife_bias: bool = False
-    compensation_doubt: float = 0.1
+    compensation_doubt: float = 0.0
     scale_floor: float = 0.001
     min_duration_s: float = 40.0
     noise_compensation: bool = True
@@ -534,10 +534,11 @@ def identify_vehicle(
     block = max(1, int(round(config.block_s * d0.rate_hz)))
     w = weighted_least_squares(a, b, group, tidx, fitted, block, noise, config.jackknife_bias)
     if noise:
-        # the noise compensation is itself uncertain (it takes the hub sensors as noisy as
-        # the body's; in tests with known truth it removed 97-100 % of a 10 % bias): carry
-        # a tenth of the scale change it made as a fully correlated scale uncertainty, plus
-        # a floor for the processing (bias without noise: 0.04-0.13 %, measured)
+        # the noise compensation may itself be uncertain (it takes the hub sensors as noisy
+        # as the body's; in tests with known truth it removed 97-100 % of a 10 % bias, so
+        # the default doubt is 0): carry compensation_doubt x the scale change it made as a
+        # fully correlated scale uncertainty, plus a floor for the processing (bias without
+        # noise: 0.04-0.13 %, measured)
         raw = weighted_least_squares(a, b, group, tidx, fitted, block, None)
         shift = w.theta[0] / raw.theta[0] - 1.0
         w.scale_std = float(np.hypot(config.compensation_doubt * shift, config.scale_floor))
