@@ -140,8 +140,8 @@ def run(args: argparse.Namespace) -> int:
             "identification needs 30 s of each drive, and a recording holds a little less "
             "than it ran for")
     if args.full_vehicle:
-        from fielddiag.commands.demo_vehicle import DEFAULT_ADDED_MASS_KG as full_kg
-        from fielddiag.commands.demo_vehicle import run_full_vehicle
+        from fielddiag.commands._demo_vehicle import DEFAULT_ADDED_MASS_KG as full_kg
+        from fielddiag.commands._demo_vehicle import run_full_vehicle
 
         if args.added_mass is None:
             args.added_mass = full_kg
