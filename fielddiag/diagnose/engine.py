@@ -67,7 +67,7 @@ from fielddiag.diagnose.selection import (
     paired_block_t,
     select_model,
 )
-from fielddiag.diagnose.shape import dahl_state, fit_shape_model
+from fielddiag.diagnose.shape import fit_shape_model
 from fielddiag.drive import CornerDrive, read_corner_drive
 from fielddiag.effects import EFFECTS, ForceModel, diagnosis_effects, get_effect, split_shape
 from fielddiag.effects.base import TRAVEL_BOUND_M
@@ -933,35 +933,36 @@ def _unexplained(
     (judged on held-out samples outside ``exclude``: what a data problem corrupts)."""
     r, v, dep, is_val, segments = _departure(fit, prepared, coupling, exclude)
     full_map = departure_map(r, v, dep, bins=12)
-    vals = fit.candidate.values
-    mass = vals.get("body_mass_kg")
-    # in per-unit-mass mode the departure is in N/kg: the words then speak of shares
-    k = vals.get("linear_spring.suspension_stiffness_n_per_m")
-    c = vals.get("linear_damper.suspension_damping_ns_per_m")
-    shape = fit_shape_model(r, v, dep, is_val, prepared[0].fit.sample_rate_hz, segments,
-                            stiffness_n_per_m=k, damping_ns_per_m=c)
+    # the decision: does the departure map of the fit part predict the held-out residual?
+    # (coarse bins, each with >= 30 samples: structure a short or noisy drive cannot fake)
+    dmap = departure_map(r[~is_val], v[~is_val], dep[~is_val], bins=12)
+    i = np.clip(np.searchsorted(dmap.r_edges_m, r[is_val]) - 1, 0, dmap.mean.shape[0] - 1)
+    j = np.clip(np.searchsorted(dmap.rdot_edges_mps, v[is_val]) - 1, 0, dmap.mean.shape[1] - 1)
+    ok = dmap.count[i, j] >= 30
+    pred = np.where(ok, np.nan_to_num(dmap.mean[i, j]), 0.0)
     e = dep[is_val] - np.mean(dep[~is_val])
-    pred = shape.surface(r[is_val], v[is_val])
-    if shape.hysteretic_force_n:
-        pred = pred + shape.hysteretic_force_n * dahl_state(
-            v, prepared[0].fit.sample_rate_hz, shape.yield_displacement_m, segments)[is_val]
-    pred = pred - np.mean(pred)
-    e = e - np.mean(e)
     t = paired_block_t(e, e - pred)
-    gain = shape.held_out_gain
+    gain = 1.0 - float(np.mean((e - pred) ** 2) / np.mean(e**2))
     share = gain
     if baseline is not None and baseline is not fit:
         share = gain * fit.candidate.mse_validation / baseline.candidate.mse_validation
     if gain > 0:
         say(f"  structure left in the residual: {100 * gain:.1f} % of it (t = {t:.1f}), "
             f"{100 * share:.1f} % of the linear model's misfit")
-    else:  # the shape fitted on the fit part predicts the held-out residual no better
+    else:  # the map of the fitted part predicts the held-out residual no better than zero
         say("  structure left in the residual: none found")
     if t < 4.0 or gain < 0.08 or share < UNEXPLAINED_MIN_SHARE_OF_LINEAR_MISFIT:
         return None, full_map
-    reg = departure_map(r[~is_val], v[~is_val], dep[~is_val], bins=12).region()
+    reg = dmap.region()
     names = ", ".join(EFFECTS[n].description for n in known if n in EFFECTS)
-    unit = "N" if mass else "N/kg"
+    # what it is: a smooth model of its shape, fitted on the fit part, scored held out
+    vals = fit.candidate.values
+    shape = fit_shape_model(r, v, dep, is_val, prepared[0].fit.sample_rate_hz, segments,
+                            stiffness_n_per_m=vals.get(
+                                "linear_spring.suspension_stiffness_n_per_m"),
+                            damping_ns_per_m=vals.get(
+                                "linear_damper.suspension_damping_ns_per_m"))
+    unit = "N" if "body_mass_kg" in vals else "N/kg"
     words = "; ".join(shape.description)
     return {
         "effect": "unexplained",
@@ -970,13 +971,13 @@ def _unexplained(
         "where": {"region": reg},
         "shape_description": shape.description,
         "model": {**shape.to_dict(), "force_unit": unit},
-        "held_out_gain": gain,
+        "held_out_gain": shape.held_out_gain,
         "explanation": (
             f"{100 * gain:.0f} % of the force the model leaves unexplained depends on "
             f"suspension travel and speed in a way none of the known effects ({names}) "
             f"describes. Its shape: {words}. A smooth model of that shape is attached "
-            "(it predicts the held-out data that much better); see the departure map for "
-            "where it acts"
+            f"(it predicts {100 * shape.held_out_gain:.0f} % of the force left on held-out "
+            "data); see the departure map for where it acts"
         ),
     }, full_map
 
@@ -1078,7 +1079,7 @@ def diagnose_drives(
     band_hz: tuple[float, float] | None = None,
     holdout_fraction: float = 0.3,
     analysis_rate_hz: float = 125.0,
-    max_full_fits: int = 7,
+    max_pair_fits: int = 3,
     progress: Callable[[str], None] | None = None,
 ) -> Diagnosis:
     """Diagnose one drive (per unit mass) or a before/after pair (absolute).
@@ -1096,8 +1097,9 @@ def diagnose_drives(
         Last part of every drive held out from the fits and used to choose.
     analysis_rate_hz : float
         The integrated signals are resampled to this rate (>= 4x the band's top).
-    max_full_fits : int
-        Grey-box fits of candidates: every single effect, then pairs of the useful ones.
+    max_pair_fits : int
+        Grey-box fits of pairs: every single effect is fitted, then pairs of the (at most
+        three) singles that predict held-out data best, up to this many.
     progress : callable or None
         Called with a line of text at each step.
 
@@ -1231,7 +1233,7 @@ def diagnose_drives(
         (tuple(sorted(a.effects + b.effects, key=list(effects).index)), a.restored or b.restored)
         for a, b in itertools.combinations(useful, 2)
     ]
-    for combo, restored in pairs[: max(0, max_full_fits - len(best))]:
+    for combo, restored in pairs[:max_pair_fits]:
         f = grey(combo, restored_on) if restored else grey(combo)
         if f is not None:
             fits.append(f)

@@ -62,11 +62,11 @@ class DigressiveDamping(Effect):
     constants = {"width_mps": 0.01}
     truth_constants = {"width_mps": 0.0}
     params = (
-        ParamSpec("compression_knee_mps", "m/s", 0.01, 2.0, 0.15, False,
+        ParamSpec("compression_knee_mps", "m/s", 0.05, 2.0, 0.15, False,
                   "compression knee velocity", "drive over sharp bumps (fast compression)"),
         ParamSpec("compression_drop_ns_per_m", "N s/m", -INF, INF, 600.0, True,
                   "compression damping drop", "drive over sharp bumps (fast compression)"),
-        ParamSpec("rebound_knee_mps", "m/s", 0.01, 2.0, 0.15, False,
+        ParamSpec("rebound_knee_mps", "m/s", 0.05, 2.0, 0.15, False,
                   "rebound knee velocity", "drive over sharp dips (fast rebound)"),
         ParamSpec("rebound_drop_ns_per_m", "N s/m", -INF, INF, 1200.0, True,
                   "rebound damping drop", "drive over sharp dips (fast rebound)"),
@@ -90,7 +90,8 @@ class DigressiveDamping(Effect):
         return 0.0, max(abs(values[1]), abs(values[3])), 0.0
 
     def start_values(self, r_m, start):
-        """Start values of a screening fit: knees at 0.1 m/s, no drop.
+        """Start values of a screening fit: knees at 0.1 m/s, no drop (a knee is bounded below
+        at 0.05 m/s: slower, a step in the force is dry friction's job).
 
         Parameters
         ----------
