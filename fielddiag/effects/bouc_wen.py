@@ -9,6 +9,7 @@ import numpy as np
 from numba import njit
 
 from fielddiag.effects.base import INF, RATE_BOUND_MPS, Effect, ParamSpec, register_effect
+from fielddiag.effects.hysteretic_spring import yield_travel_start_m
 
 
 @njit(cache=True, nogil=True)
@@ -123,8 +124,7 @@ class BoucWen(Effect):
         dict
             ``yield_displacement_m`` [m].
         """
-        spread = float(np.std(r_m)) if np.size(r_m) else 0.0
-        return {"yield_displacement_m": float(np.clip(0.05 * spread, 2e-4, 0.01))}
+        return {"yield_displacement_m": yield_travel_start_m(r_m)}
 
     def explain(self, params: Mapping[str, float], per: str = "", hidden: str = "") -> str:
         """A sentence a technician can act on: the loop's height and its yield travel.

@@ -20,6 +20,22 @@ def _hysteretic_spring(r, rd, x2, z, p, c, dp, dz):  # pragma: no cover - compil
     return -p[0] * z[0], 0.0, 0.0, 0.0
 
 
+def yield_travel_start_m(r_m: np.ndarray) -> float:
+    """Start value of a hysteresis's yield travel [m]: 5 % of the travel's spread, 0.2-10 mm.
+
+    Parameters
+    ----------
+    r_m : ndarray
+        Measured suspension extension [m].
+
+    Returns
+    -------
+    float
+    """
+    spread = float(np.std(r_m)) if np.size(r_m) else 0.0
+    return float(np.clip(0.05 * spread, 2e-4, 0.01))
+
+
 @register_effect
 class HystereticSpring(Effect):
     """Dahl hysteresis (Bouc-Wen with n = 1, A = 1, beta = 1/z_y, gamma = 0).
@@ -96,8 +112,7 @@ class HystereticSpring(Effect):
         dict
             ``yield_displacement_m`` [m].
         """
-        spread = float(np.std(r_m)) if np.size(r_m) else 0.0
-        return {"yield_displacement_m": float(np.clip(0.05 * spread, 2e-4, 0.01))}
+        return {"yield_displacement_m": yield_travel_start_m(r_m)}
 
     def explain(self, params: Mapping[str, float], per: str = "", hidden: str = "") -> str:
         """A sentence a technician can act on: the loop's height and its yield travel.
