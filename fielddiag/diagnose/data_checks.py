@@ -381,7 +381,7 @@ def check_gain_change(
 
 
 def gain_warning(label_a: str, label_b: str, change: float, std: float,
-                 moved: str = "") -> DataWarning:
+                 moved: str = "", evidence: str = "") -> DataWarning:
     """The plain-language warning for a gain change of ``change`` (+- ``std``).
 
     Parameters
@@ -392,18 +392,27 @@ def gain_warning(label_a: str, label_b: str, change: float, std: float,
         Relative gain change of the second drive (gain - 1) and its standard deviation.
     moved : str
         Text appended to the advice (e.g. how the fit corrected it), or "".
+    evidence : str
+        What else says so (the accelerometers' gravity levels), or "".
 
     Returns
     -------
     DataWarning
         ``sensor_gain_changed`` for ``label_b``.
     """
+    if evidence:
+        what = (f"the {label_b} drive's body/wheel gain ratio is {100 * change:+.1f} +- "
+                f"{100 * std:.1f} % off the {label_a} drive's: {evidence}. A sensor's gain "
+                "changed between the drives (remounted, tilted, other range, other "
+                "calibration)")
+    else:
+        what = (f"the {label_b} drive's body/wheel transmissibility is {100 * change:+.1f} "
+                f"+- {100 * std:.1f} % off the {label_a} drive's at every frequency, as if a "
+                "sensor's gain changed between the drives (remounted, other range, other "
+                "calibration)")
     return DataWarning(
         "sensor_gain_changed",
-        f"the {label_b} drive's body/wheel transmissibility is {100 * change:+.1f} +- "
-        f"{100 * std:.1f} % off the {label_a} drive's at every frequency, as if a sensor's "
-        "gain changed between the drives (remounted, other range, other calibration). "
-        f"Check both sensors' calibration and mounting{moved}",
+        f"{what}. Check both sensors' calibration and mounting{moved}",
         label_b,
         "",
         change,

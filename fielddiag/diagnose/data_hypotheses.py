@@ -23,6 +23,8 @@ from typing import Any
 
 import numpy as np
 
+from fielddiag.diagnose.gravity_gain import GravityGain
+
 #: Kinds of data hypotheses (their names in ``Diagnosis.to_dict()['warnings']``).
 GAIN_CHANGE = "sensor_gain_changed"
 TIME_OFFSET = "channel_time_offset"
@@ -63,6 +65,7 @@ class DataHypothesis:
     value: float
     std: float
     prior: DataHypothesis | None = None  # a problem corrected before this one
+    evidence: str = ""  # what besides the transmissibility says so (the gravity levels)
 
     @property
     def chain(self) -> list[DataHypothesis]:
@@ -75,21 +78,67 @@ class DataHypothesis:
         return abs(self.value) / self.std if self.std > 0 else np.inf
 
 
+def combine_gain(dynamic: tuple[float, float] | None, gravity: GravityGain | None
+                 ) -> DataHypothesis | None:
+    """One gain-change estimate from the transmissibility's level and the gravity levels.
+
+    Two independent measurements of the second drive's body/wheel gain ratio: where both
+    exist and agree (within 3 standard deviations of their difference) they are averaged
+    with inverse-variance weights; where they disagree, the transmissibility's level moved
+    for another reason than a sensor's gain (physics that acts differently under the added
+    mass) and the gravity levels, which no suspension moves, are the estimate.
+
+    Parameters
+    ----------
+    dynamic : (float, float) or None
+        Gain - 1 and its std from the transmissibilities, or None.
+    gravity : GravityGain or None
+        The gravity levels' estimate (:func:`fielddiag.diagnose.gravity_gain.gain_from_gravity`),
+        or None (a channel without gravity).
+
+    Returns
+    -------
+    DataHypothesis or None
+        :data:`GAIN_CHANGE` with ``evidence`` naming the gravity levels when they took part.
+    """
+    if gravity is None:
+        return None if dynamic is None else DataHypothesis(GAIN_CHANGE, *dynamic)
+    g, gs = gravity.ratio_change, gravity.ratio_std
+    evidence = gravity.describe()
+    if dynamic is None:
+        return DataHypothesis(GAIN_CHANGE, g, gs, evidence=evidence)
+    d, ds = dynamic
+    if abs(d - g) > 3.0 * float(np.hypot(ds, gs)):
+        return DataHypothesis(GAIN_CHANGE, g, gs, evidence=(
+            f"{evidence}; the transmissibility's level moved {100 * d:+.1f} +- "
+            f"{100 * ds:.1f} %, which the gravity levels do not confirm (physics, not the "
+            "sensor)"))
+    w_d, w_g = 1.0 / ds**2, 1.0 / gs**2
+    value = (w_d * d + w_g * g) / (w_d + w_g)
+    return DataHypothesis(GAIN_CHANGE, float(value), float(1.0 / np.sqrt(w_d + w_g)),
+                          evidence=f"{evidence}; the transmissibility's level agrees "
+                                   f"({100 * d:+.1f} +- {100 * ds:.1f} %)")
+
+
 def from_transmissibility(trs: list[dict], band_hz: tuple[float, float],
-                          added_mass_kg: float, start: dict[str, float]) -> list[DataHypothesis]:
-    """Data hypotheses worth fitting, estimated from two drives' transmissibilities.
+                          added_mass_kg: float, start: dict[str, float],
+                          gravity: GravityGain | None = None) -> list[DataHypothesis]:
+    """Data hypotheses worth fitting, estimated from two drives' transmissibilities (and,
+    for a gain change, the accelerometers' gravity levels).
 
     Parameters
     ----------
     trs : list of dict
         Before and after transmissibilities (``freq_hz``, ``measured``, ``model``,
-        ``coherence``, ``label``) from the linear identification.
+        ``coherence``, ``label``) from the linear identification; may be empty.
     band_hz : (float, float)
         Band of the identification [Hz].
     added_mass_kg : float
         Mass added for the second drive [kg].
     start : dict
         The identification's linear values (start of the gain fit).
+    gravity : GravityGain or None
+        Both channels' gain changes from their gravity levels (:func:`combine_gain`).
 
     Returns
     -------
@@ -100,13 +149,18 @@ def from_transmissibility(trs: list[dict], band_hz: tuple[float, float],
     from fielddiag.diagnose import data_checks
 
     out = []
-    try:
-        g = data_checks.fit_gain_change(trs, band_hz, added_mass_kg=added_mass_kg,
-                                        start=start)
-    except (ValueError, ZeroDivisionError, FloatingPointError, np.linalg.LinAlgError):
-        g = None  # no estimate: the physics competes without this hypothesis
-    if g is not None and abs(g.change) >= MIN_GAIN_CHANGE and abs(g.change) >= MIN_Z * g.std:
-        out.append(DataHypothesis(GAIN_CHANGE, g.change, g.std))
+    g = None
+    if trs:
+        try:
+            g = data_checks.fit_gain_change(trs, band_hz, added_mass_kg=added_mass_kg,
+                                            start=start)
+        except (ValueError, ZeroDivisionError, FloatingPointError, np.linalg.LinAlgError):
+            g = None  # no estimate: the physics competes without this hypothesis
+    gain = combine_gain(None if g is None else (g.change, g.std), gravity)
+    if gain is not None and abs(gain.value) >= MIN_GAIN_CHANGE and gain.z >= MIN_Z:
+        out.append(gain)
+    if not trs:
+        return out
     try:
         tau = data_checks.fit_time_offset(trs, band_hz)
     except (ValueError, np.linalg.LinAlgError):

@@ -51,6 +51,7 @@ from fielddiag.diagnose.data_hypotheses import (
 from fielddiag.diagnose.data_hypotheses import (
     KINDS as DATA_KINDS,
 )
+from fielddiag.diagnose.gravity_gain import GravityGain, gain_from_gravity
 from fielddiag.diagnose.locate import (
     DepartureMap,
     departure_map,
@@ -469,7 +470,7 @@ class Diagnosis:
         for hyp in self.chosen.data.chain:
             if hyp.kind == "sensor_gain_changed":
                 out.append(data_checks.gain_warning(self.drives[0].label, self.drives[-1].label,
-                                                    hyp.value, hyp.std, moved))
+                                                    hyp.value, hyp.std, moved, hyp.evidence))
             else:
                 out.append(data_checks.time_offset_warning(hyp.value, hyp.std, moved))
         return out
@@ -717,13 +718,13 @@ class _FrequencyDomain:
     band_hz: tuple[float, float] = (0.0, 0.0)
     added_mass_kg: float = 0.0
 
-    def hypotheses(self, start: dict[str, float]) -> list[DataHypothesis]:
+    def hypotheses(self, start: dict[str, float], gravity: GravityGain | None = None
+                   ) -> list[DataHypothesis]:
         """The data hypotheses worth fitting (gain change, time offset), the gain's linear
-        fit started from ``start`` (SI values of the linear model)."""
-        if not self.transmissibility:
-            return []
+        fit started from ``start`` (SI values of the linear model) and combined with the
+        accelerometers' gravity levels (``gravity``, None: not available)."""
         return from_transmissibility(self.transmissibility, self.band_hz,
-                                     self.added_mass_kg, start)
+                                     self.added_mass_kg, start, gravity)
 
 
 def _frequency_domain(drives: Sequence[Drive]) -> _FrequencyDomain:
@@ -1260,10 +1261,11 @@ def diagnose_drives(
 
     # data problems compete with the physics: each is corrected and the models refitted
     hypotheses = []
+    gravity = gain_from_gravity(drives) if mode == "pair" else None
     if fd is not None:
         lin = fd.linear or {_LINEAR_SI[k]: v for k, v in base.candidate.values.items()
                             if k in _LINEAR_SI}
-        hypotheses = fd.hypotheses(lin)
+        hypotheses = fd.hypotheses(lin, gravity)
     if not any(h.kind == "channel_time_offset" for h in hypotheses):
         found = _time_domain_offset(base)
         if found is not None:
@@ -1294,7 +1296,7 @@ def diagnose_drives(
         fd2 = _frequency_domain(correct_drives(drives, offset_fit.data))
         start = fd2.linear or {_LINEAR_SI[k]: v for k, v in offset_fit.candidate.values.items()
                                if k in _LINEAR_SI}
-        for g in fd2.hypotheses(start):
+        for g in fd2.hypotheses(start, gravity):
             if g.kind == "sensor_gain_changed":
                 g = replace(g, prior=offset_fit.data)
                 say(f"testing a {_DATA_LABEL[g.kind]} ({_data_size(g)}) on top of the "

@@ -1,0 +1,214 @@
+"""A sensor's gain change between two drives, read off its gravity level.
+
+An accelerometer with a DC response (MEMS, capacitive, piezo-resistive) reads
+``gain * (a + g) + bias``. The vertical acceleration ``a`` of a car that returns to the road
+averages to ``(v_end - v_start) / T``: nothing over a drive of minutes. So the mean reading
+of each channel is ``gain * g + bias``, and the ratio of a channel's mean readings in two
+drives is the ratio of its gains, up to the change of its bias between the drives. This is
+independent of the suspension's physics, which is what makes it worth having beside the
+transmissibility's level (:func:`fielddiag.diagnose.data_checks.fit_gain_change`): physics
+that changes the transmissibility's level between the drives (a damper that meets another
+part of its stroke under the added mass) cannot move the gravity level, and a gain change
+moves both.
+
+Uncertainty of a channel's level, per drive (all in m/s^2, added in quadrature):
+
+* the scatter of 10 s window means about their straight-line trend, over the square root
+  of the number of windows (slow motion, road grade, noise);
+* a drifting bias: the trend's change over the drive divided by sqrt(12) (where the drift
+  started is not known: the level of the drive's middle is used);
+* clipped readings: their share of the samples times the distance of the clipping level
+  from the channel's level, over 3 (the excess beyond full scale that was lost);
+* and, for the ratio between drives, the bias change of the sensor between the drives:
+  :data:`BIAS_CHANGE_STD_MPS2` (a MEMS sensor's offset moves 0.1-0.5 mg per kelvin; a few
+  kelvin between the drives).
+
+Channels without gravity in them (AC-coupled IEPE sensors, or readings with gravity
+removed) give no estimate: their mean is not within :data:`GRAVITY_BAND` of g.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from fielddiag.diagnose.data_checks import clipped_mask
+from fielddiag.units import GRAVITY_MPS2
+
+__all__ = ["BIAS_CHANGE_STD_MPS2", "GRAVITY_BAND", "ChannelGain", "GravityGain",
+           "GravityLevel", "gain_from_gravity", "gravity_level"]
+
+#: Standard deviation of a sensor's bias change between two drives [m/s^2] (2 mg).
+BIAS_CHANGE_STD_MPS2 = 0.02
+#: A channel carries gravity when its mean reading / g lies in this band.
+GRAVITY_BAND = (0.8, 1.2)
+#: Length of the windows whose means are compared [s].
+WINDOW_S = 10.0
+#: Fewest windows for a level with a scatter.
+MIN_WINDOWS = 4
+
+
+@dataclass(frozen=True)
+class GravityLevel:
+    """One channel's static reading during one drive.
+
+    Attributes
+    ----------
+    level_mps2 : float
+        Mean reading at the middle of the drive [m/s^2] (``gain * g + bias``).
+    std_mps2 : float
+        Its standard deviation [m/s^2] (scatter, drift, clipping; not the bias change).
+    drift_mps2 : float
+        Change of the straight-line trend over the drive [m/s^2].
+    """
+
+    level_mps2: float
+    std_mps2: float
+    drift_mps2: float
+
+
+def gravity_level(time_s: np.ndarray, values_mps2: np.ndarray) -> GravityLevel | None:
+    """The static level of one accelerometer channel over a drive.
+
+    Parameters
+    ----------
+    time_s : ndarray
+        Sample times [s].
+    values_mps2 : ndarray
+        Readings [m/s^2], up positive, gravity included.
+
+    Returns
+    -------
+    GravityLevel or None
+        None when the drive is shorter than :data:`MIN_WINDOWS` windows or the channel
+        does not carry gravity (mean / g outside :data:`GRAVITY_BAND`).
+    """
+    t = np.asarray(time_s, float)
+    x = np.asarray(values_mps2, float)
+    if t.size < 2 or x.size != t.size:
+        return None
+    duration = float(t[-1] - t[0])
+    n_win = int(duration // WINDOW_S)
+    if n_win < MIN_WINDOWS:
+        return None
+    edges = t[0] + WINDOW_S * np.arange(n_win + 1)
+    idx = np.searchsorted(t, edges)
+    means = np.array([x[a:b].mean() for a, b in zip(idx[:-1], idx[1:], strict=True)
+                      if b > a])
+    if means.size < MIN_WINDOWS:
+        return None
+    centres = (np.arange(means.size) + 0.5) * WINDOW_S
+    slope, intercept = np.polyfit(centres - centres.mean(), means, 1)
+    level = float(intercept)
+    if not GRAVITY_BAND[0] <= abs(level) / GRAVITY_MPS2 <= GRAVITY_BAND[1]:
+        return None
+    scatter = float(np.std(means - (intercept + slope * (centres - centres.mean())),
+                           ddof=2)) if means.size > 2 else 0.0
+    drift = float(slope * duration)
+    clipped = clipped_mask(x)
+    clip_term = 0.0
+    if clipped.any():
+        at = x[clipped]
+        clip_term = float(clipped.mean()) * float(np.max(np.abs(at - level))) / 3.0
+    std = math.sqrt(scatter**2 / means.size + drift**2 / 12.0 + clip_term**2)
+    return GravityLevel(level, std, drift)
+
+
+@dataclass(frozen=True)
+class ChannelGain:
+    """A channel's gain in the second drive relative to the first.
+
+    Attributes
+    ----------
+    channel : str
+        ``wheel`` or ``body``.
+    change : float
+        Gain ratio - 1.
+    std : float
+        Its standard deviation.
+    levels_mps2 : (float, float)
+        The gravity levels of the two drives [m/s^2].
+    """
+
+    channel: str
+    change: float
+    std: float
+    levels_mps2: tuple[float, float]
+
+    @property
+    def z(self) -> float:
+        """|change| / std."""
+        return abs(self.change) / self.std if self.std > 0 else math.inf
+
+
+@dataclass(frozen=True)
+class GravityGain:
+    """Both channels' gain changes and the body/wheel ratio the dynamics see.
+
+    Attributes
+    ----------
+    wheel, body : ChannelGain
+    ratio_change : float
+        ``(1 + body.change) / (1 + wheel.change) - 1``: what scales the second drive's
+        transmissibility.
+    ratio_std : float
+        Its standard deviation.
+    """
+
+    wheel: ChannelGain
+    body: ChannelGain
+    ratio_change: float
+    ratio_std: float
+
+    def culprit(self) -> ChannelGain:
+        """The channel whose gain moved more (in standard deviations)."""
+        return self.body if self.body.z >= self.wheel.z else self.wheel
+
+    def describe(self) -> str:
+        """``"the wheel accelerometer's gravity reading went from 9.81 to 9.61 m/s2
+        (-2.0 +- 0.2 %); the body's stayed within 0.1 %"``."""
+        c = self.culprit()
+        o = self.wheel if c is self.body else self.body
+        return (f"the {c.channel} accelerometer's gravity reading went from "
+                f"{c.levels_mps2[0]:.3f} to {c.levels_mps2[1]:.3f} m/s2 "
+                f"({100 * c.change:+.1f} +- {100 * c.std:.1f} %); the {o.channel}'s "
+                f"moved {100 * o.change:+.1f} +- {100 * o.std:.1f} %")
+
+
+def _channel_gain(channel: str, a: GravityLevel, b: GravityLevel) -> ChannelGain:
+    ratio = b.level_mps2 / a.level_mps2
+    rel_var = ((a.std_mps2**2 + BIAS_CHANGE_STD_MPS2**2) / a.level_mps2**2
+               + b.std_mps2**2 / b.level_mps2**2)
+    return ChannelGain(channel, ratio - 1.0, abs(ratio) * math.sqrt(rel_var),
+                       (a.level_mps2, b.level_mps2))
+
+
+def gain_from_gravity(drives) -> GravityGain | None:
+    """Gain changes of both accelerometers between two drives, from their gravity levels.
+
+    Parameters
+    ----------
+    drives : sequence of CornerDrive-like
+        Two drives with ``time_s``, ``wheel_accel_mps2`` and ``body_accel_mps2``
+        (readings in m/s^2, gravity included).
+
+    Returns
+    -------
+    GravityGain or None
+        None unless there are two drives and both channels carry gravity in both.
+    """
+    if len(drives) != 2:
+        return None
+    levels = {}
+    for ch in ("wheel", "body"):
+        pair = [gravity_level(d.time_s, getattr(d, f"{ch}_accel_mps2")) for d in drives]
+        if any(p is None for p in pair) or np.sign(pair[0].level_mps2) != np.sign(
+                pair[1].level_mps2):
+            return None
+        levels[ch] = _channel_gain(ch, pair[0], pair[1])
+    w, b = levels["wheel"], levels["body"]
+    ratio = (1.0 + b.change) / (1.0 + w.change)
+    std = abs(ratio) * math.hypot(b.std / (1.0 + b.change), w.std / (1.0 + w.change))
+    return GravityGain(w, b, ratio - 1.0, std)
