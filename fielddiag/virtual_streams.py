@@ -165,9 +165,8 @@ def full_vehicle_stream(*, drive_s: float, sample_rate_hz: float, added_mass_kg:
     Raises
     ------
     InvalidValueError
-        An added mass without its position.
-    ValueError
-        Hub accelerations beyond the largest measuring range of the virtual DAQ.
+        An added mass without its position; hub accelerations beyond the largest
+        measuring range of the virtual DAQ.
     """
     from drivers.virtual import full_scale_for
     from fielddiag.vehicle.corner_map import VIRTUAL_DAQ_MAP, daq_columns
@@ -192,7 +191,11 @@ def full_vehicle_stream(*, drive_s: float, sample_rate_hz: float, added_mass_kg:
     if with_daq:
         signals = daq_columns(drive.wheel_accel_mps2, drive.body_accel_mps2)
         roles = [VIRTUAL_DAQ_MAP[i].split("_")[0] for i in range(signals.shape[1])]
-        full_scale = full_scale_for(signals)
+        try:
+            full_scale = full_scale_for(signals)
+        except ValueError as exc:
+            raise InvalidValueError(f"the virtual DAQ cannot record this drive: {exc}; "
+                                    "simulate a smoother road or a slower drive") from None
     return DriveStream(
         drive=drive, signals_mps2=signals, daq_roles=roles,
         role_map=dict(VIRTUAL_DAQ_MAP) if with_daq else None, full_scale_mps2=full_scale,

@@ -11,11 +11,11 @@ A full vehicle (eight accelerometers on one DAQ, the car's speed and acceleratio
 say which channel is which sensor with --role ROLE=CHANNEL (channel numbers from 0), give
 the vehicle file, and name the CAN signals by their roles' aliases::
 
-    fielddiag record --daq serial:///dev/ttyUSB0 --role wheel_fl=0 --role body_fl=1 \
-        --role wheel_fr=2 --role body_fr=3 --role wheel_rl=4 --role body_rl=5 \
-        --role wheel_rr=6 --role body_rr=7 --vehicle-file car.json \
-        --can "can://socketcan/can0?dbc=car.dbc" --signal vehicle_speed=SPEED.SPEED \
-        --signal accel_long=KINEMATICS.ACCEL_X --signal accel_lat=KINEMATICS.ACCEL_Y \
+    fielddiag record --daq serial:///dev/ttyUSB0 --role wheel_fl=0 --role body_fl=1 \\
+        --role wheel_fr=2 --role body_fr=3 --role wheel_rl=4 --role body_rl=5 \\
+        --role wheel_rr=6 --role body_rr=7 --vehicle-file car.json \\
+        --can "can://socketcan/can0?dbc=car.dbc" --signal vehicle_speed=SPEED.SPEED \\
+        --signal accel_long=KINEMATICS.ACCEL_X --signal accel_lat=KINEMATICS.ACCEL_Y \\
         --added-mass 150 --added-mass-at 1.9,0.3 -o after.h5
 
 ``--virtual`` records a simulated car instead: the virtual DAQ on a pseudo-terminal read
