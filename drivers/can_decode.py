@@ -33,6 +33,9 @@ Rules, each in one place:
 * **Vehicle speed** (role ``speed``): the signal named with ``speed_signal``, else the
   first one aliased ``vehicle_speed`` or with a usual vehicle speed name
   (:data:`VEHICLE_SPEED_NAMES`) and a speed unit.
+* **The car's accelerations** (roles ``accel_long``, forward positive, and ``accel_lat``,
+  left positive; a full-vehicle session needs them): the signals aliased ``accel_long``
+  and ``accel_lat`` (:data:`ROLE_ALIASES`), e.g. ``accel_long=KINEMATICS.ACCEL_X``.
 """
 
 from __future__ import annotations
@@ -81,6 +84,9 @@ VEHICLE_SPEED_NAMES = (
 )
 #: The alias that makes a signal the vehicle speed whatever its DBC name.
 SPEED_ALIAS = "vehicle_speed"
+#: Aliases that give a signal a role of the same name: the car's longitudinal and lateral
+#: accelerations of a full-vehicle session.
+ROLE_ALIASES = ("accel_long", "accel_lat")
 _WHEEL_SPEED_RE = re.compile(r"(wheelspeed|wheelspd|whlspd|whlspeed)")
 
 
@@ -493,7 +499,8 @@ def _name_choices(picked: list[tuple[str, _Entry]], speed_signal: str | None) ->
             (n for n, e in named if n == SPEED_ALIAS or _is_speed(e)), None
         )
     return [
-        SignalChoice(n, d, m, s, "speed" if n == speed_signal else "other")
+        SignalChoice(n, d, m, s,
+                     "speed" if n == speed_signal else n if n in ROLE_ALIASES else "other")
         for n, (d, m, s) in named
     ]
 
@@ -635,6 +642,7 @@ __all__ = [
     "CanDecoder",
     "Dbc",
     "FD_LENGTHS",
+    "ROLE_ALIASES",
     "SPEED_ALIAS",
     "SignalChoice",
     "VEHICLE_SPEED_NAMES",

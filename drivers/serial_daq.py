@@ -29,6 +29,12 @@ Query options of the URL (all optional):
     Baud rate (921600; ignored by USB CDC devices and pseudo-terminals).
 ``roles``, ``names``
     Comma-separated channel roles / names overriding those from the device.
+
+A channel map set on the source before it is opened (:attr:`_SerialPortSource.role_map`,
+``{channel index: role}``; ``fielddiag record --role wheel_fl=0 ...``) gives the mapped
+channels their role and name (``wheel_fl``...) and makes every other channel ``other``:
+the device's INFO frame cannot say which corner a sensor is on. A channel index the
+device does not have is refused when the device has said how many it has.
 ``reconnect``
     ``false`` to stop the recording on disconnect instead of waiting for the device.
 ``handshake_timeout``
@@ -168,6 +174,9 @@ class _SerialPortSource(Source):
         self.handshake_timeout_s = handshake_timeout_s
         self.min_block_interval_s = min_block_interval_s
         self.reconnect_max_interval_s = reconnect_max_interval_s
+        #: Channel index -> role, applied when the device has told its channels (see the
+        #: module docstring); None keeps the roles of the device or of ``?roles=``.
+        self.role_map: dict[int, str] | None = None
         self._port: serial.Serial | None = None
         self._port_timeout: float | None = None
         self._last_read = 0.0
@@ -180,6 +189,31 @@ class _SerialPortSource(Source):
         self._buffer_fill = 0.0
         self._last_data_mono = time.monotonic()
         self._last_start_sent = 0.0
+
+    def _mapped(self, roles: list[str], names: list[str] | None, n: int
+                ) -> tuple[list[str], list[str] | None]:
+        """Roles and names of the ``n`` channels after :attr:`role_map` (if any).
+
+        Raises
+        ------
+        DeviceError
+            The map names a channel the device does not have (the port is closed first).
+        """
+        if not self.role_map:
+            return roles, names
+        beyond = sorted(i for i in self.role_map if not 0 <= i < n)
+        if beyond:
+            self._close_port()
+            i = beyond[0]
+            raise DeviceError(
+                f"{self.url}: channel {i} ({self.role_map[i]}) is not on the device: it has "
+                f"{n} channel{'s' if n != 1 else ''}, numbered 0 to {n - 1}; correct the "
+                "channel map")
+        mapped = [self.role_map.get(i, "other") for i in range(n)]
+        given = list(names or [])
+        out = [given[i] if i < len(given) and given[i] else
+               (mapped[i] if i in self.role_map else "") for i in range(n)]
+        return mapped, out
 
     # -------------------------------------------------------------- port primitives
     def _open_port(self) -> serial.Serial:
@@ -480,6 +514,7 @@ class SerialDAQSource(_SerialPortSource):
                 f"{self.url}: {len(roles)} roles given for a device with {n} channels; give "
                 "one role per channel in ?roles="
             )
+        roles, names = self._mapped(roles, self.names, n)
         self.channels = _channel_specs(
             n,
             roles,
@@ -487,7 +522,7 @@ class SerialDAQSource(_SerialPortSource):
             [info.scale(i) for i in range(n)],
             FORMAT_NAMES[info.sample_format],
             f"{info.model} #{info.serial_number}",
-            self.names,
+            names,
         )
 
     def start(self, clock) -> None:
@@ -912,7 +947,7 @@ class SerialTextSource(_SerialPortSource):
                 f"{self.url}: {len(roles)} roles given for {nch} channels; give one role per "
                 "channel in ?roles="
             )
-        names = self.names or self._parser.header
+        roles, names = self._mapped(roles, self.names or self._parser.header, nch)
         self.channels = _channel_specs(
             nch,
             roles,

@@ -9,10 +9,16 @@
     removed while the "cable" is out and re-pointed at a new pty when it comes back, like
     ``/dev/ttyUSB0`` disappearing and reappearing.
 :class:`VirtualECU`
-    Publishes vehicle speed and the four wheel speeds, encoded with a DBC, on a python-can
+    Publishes vehicle speed and the four wheel speeds (and, for a full-vehicle drive, the
+    car's longitudinal and lateral accelerations), encoded with a DBC, on a python-can
     bus (in-process ``virtual`` bus, ``udp_multicast`` if msgpack is installed) or on an
     :class:`SlcanPty` (an SLCAN adapter emulated on a pty, which python-can's ``slcan``
     interface reads from another process).
+
+A full-vehicle drive (:func:`fielddiag.vehicle.simulate_vehicle`) is streamed as eight
+channels by one :class:`VirtualDAQ` (``fielddiag.vehicle.corner_map`` says which channel is
+which corner's sensor); :func:`full_scale_for` picks a measuring range its hub
+accelerations do not clip.
 
 The virtual DAQ keeps acquiring while its cable is out (a self-powered logger behind a
 USB-serial adapter): frames made meanwhile are lost and their sequence numbers skipped,
@@ -68,7 +74,18 @@ BO_ 180 SPEED: 8 VECU
  SG_ ENCODER : 39|8@0+ (1,0) [0|255] "" Vector__XXX
  SG_ SPEED : 47|16@0+ (0.01,0) [0|250] "km/h" Vector__XXX
  SG_ CHECKSUM : 63|8@0+ (1,0) [0|255] "" Vector__XXX
+
+BO_ 192 KINEMATICS: 8 VECU
+ SG_ ACCEL_X : 0|16@1- (0.001,0) [-32.768|32.767] "m/s^2" Vector__XXX
+ SG_ ACCEL_Y : 16|16@1- (0.001,0) [-32.768|32.767] "m/s^2" Vector__XXX
 """
+#: KINEMATICS (0x0C0, fielddiag's own, not from opendbc): the car's longitudinal
+#: (``ACCEL_X``, forward positive) and lateral (``ACCEL_Y``, left positive) acceleration,
+#: 1 mm/s^2 per bit. Sent only for a full-vehicle drive.
+KINEMATICS_SIGNALS = ("KINEMATICS.ACCEL_X", "KINEMATICS.ACCEL_Y")
+
+#: Measuring ranges of the accelerometers the virtual DAQ can be given [g].
+FULL_SCALE_RANGES_G = (2, 4, 8, 16, 32, 64, 128)
 
 
 # ----------------------------------------------------------------------------- signals
@@ -115,6 +132,38 @@ def simulated_accelerations(
     for _ in range(2, n_channels):
         cols.append(rng.normal(0.0, noise_std_mps2, n))
     return np.column_stack(cols), drive
+
+
+def full_scale_for(signals_mps2: np.ndarray, headroom: float = 1.25) -> float:
+    """The smallest range of :data:`FULL_SCALE_RANGES_G` that holds the signals with headroom.
+
+    Integer samples clip at the full scale without any sign in the data; the range is
+    chosen so that ``headroom`` times the largest absolute reading fits. (Resolution is no
+    concern with int32 samples: 1 LSB is full scale / 2**31, 7e-8 m/s^2 at 16 g.)
+
+    Parameters
+    ----------
+    signals_mps2 : ndarray
+        What the sensors will read [m/s^2].
+    headroom : float
+        Margin above the largest reading (>= 1).
+
+    Returns
+    -------
+    float
+        Full scale [m/s^2].
+
+    Raises
+    ------
+    ValueError
+        The readings exceed the largest range.
+    """
+    peak = float(np.max(np.abs(signals_mps2))) if np.size(signals_mps2) else 0.0
+    for g in FULL_SCALE_RANGES_G:
+        if headroom * peak <= g * G_MPS2:
+            return g * G_MPS2
+    raise ValueError(f"readings of {peak / G_MPS2:.0f} g exceed the largest range, "
+                     f"{FULL_SCALE_RANGES_G[-1]} g")
 
 
 def to_counts(signals_mps2: np.ndarray, full_scale_mps2: float, sample_format: int) -> np.ndarray:
@@ -371,6 +420,8 @@ class VirtualDAQ:
         self._run_start_dev_s = 0.0
         self._run_frames = 0
         self._run_seq0 = 0
+        self._run_index0 = 0
+        self._run_started = False
 
     def device_time_s(self, mono: float | None = None) -> float:
         """Device clock (seconds since boot) at host monotonic time ``mono``."""
@@ -386,6 +437,19 @@ class VirtualDAQ:
         n = self.samples_per_frame
         idx = (seq * n + np.arange(n)) % self.counts.shape[0]
         return self.counts[idx]
+
+    def data_time_s(self, mono: float | None = None) -> float | None:
+        """How far into ``signals_mps2`` the device is at host time ``mono`` [s].
+
+        Sample ``k`` of the signals is acquired at data time ``k / sample_rate_hz``; a
+        device that plays a drive with another one (the virtual ECU) follows this clock.
+        Not wrapped when looping; after a STOP (or the end of the signals) it runs on from
+        the last run. None before the first START (since power-on).
+        """
+        if not self._run_started:
+            return None
+        return (self._run_index0 / self.sample_rate_hz
+                + self.device_time_s(mono) - self._run_start_dev_s)
 
     def acquired_at(self, seq: int) -> float:
         """Host monotonic time at which frame ``seq`` of the current run started acquiring."""
@@ -492,10 +556,12 @@ class VirtualDAQ:
                 self._enqueue(encode_info(self.info), None)
             elif cmd == b"START":
                 if not self.streaming:
-                    self.streaming = True
                     self._run_start_dev_s = self.device_time_s()
                     self._run_frames = 0
                     self._run_seq0 = self.seq
+                    self._run_index0 = self._data_index
+                    self._run_started = True  # last: data_time_s() reads the run's start
+                    self.streaming = True
             elif cmd == b"STOP":
                 self.streaming = False
 
@@ -655,7 +721,8 @@ class SlcanPty:
 
 
 class VirtualECU:
-    """Publish vehicle speed and wheel speeds on a CAN bus, encoded with a DBC.
+    """Publish vehicle speed and wheel speeds (and the car's accelerations) on a CAN bus,
+    encoded with a DBC.
 
     Parameters
     ----------
@@ -669,9 +736,17 @@ class VirtualECU:
         and (optional) ``wheel_message`` with the four ``wheel_signals``.
     speed_period_s, wheel_period_s : float
         Transmission periods (the RAV4 sends SPEED at 41 Hz and WHEEL_SPEEDS at 83 Hz).
+    accel_mps2 : (ndarray, ndarray) or None
+        The car's longitudinal (forward positive) and lateral (left positive) acceleration
+        on ``speed_time_s`` [m/s^2] (a full-vehicle drive's), sent in ``accel_message``
+        as ``accel_signals`` every ``accel_period_s``. Each value sent is the mean of the
+        series over the period centred on the time it is sent for (an anti-alias filter
+        without delay: the samples between two frames are not aliased into the band).
+        None: not sent.
     time_fn : callable or None
         The ECU's clock (seconds); default: seconds since :meth:`start`. Give a session
-        clock's ``now`` to report the speed of that session time.
+        clock's ``now`` to report the speed of that session time, or a virtual DAQ's
+        :meth:`VirtualDAQ.data_time_s` to play the drive it streams, in step with it.
     """
 
     def __init__(
@@ -692,6 +767,10 @@ class VirtualECU:
         ),
         speed_period_s: float = 1 / 41.0,
         wheel_period_s: float = 1 / 83.0,
+        accel_mps2: tuple[np.ndarray, np.ndarray] | None = None,
+        accel_message: str = "KINEMATICS",
+        accel_signals: Sequence[str] = ("ACCEL_X", "ACCEL_Y"),
+        accel_period_s: float = 0.01,
         loop: bool = False,
         seed: int = 0,
         on_send: Callable[[Any], None] | None = None,
@@ -713,6 +792,12 @@ class VirtualECU:
         self.wheel_signals = tuple(wheel_signals)
         self.speed_period_s = speed_period_s
         self.wheel_period_s = wheel_period_s
+        self.accel_msg = dbc.get_message_by_name(accel_message) if accel_mps2 else None
+        self.accel_signals = tuple(accel_signals)
+        self.accel_period_s = float(accel_period_s)
+        # running sums of the accelerations: the mean over any window in two look-ups
+        self._accel_sums = None if accel_mps2 is None else [
+            np.concatenate([[0.0], np.cumsum(np.asarray(a, dtype="f8"))]) for a in accel_mps2]
         self.loop = loop
         rng = np.random.default_rng(seed)
         self._wheel_factor = 1.0 + rng.normal(0.0, 0.002, 4)  # tyre radius differences
@@ -729,6 +814,19 @@ class VirtualECU:
         if self.loop and self.t.size > 1:
             t_s = t_s % self.t[-1]
         return float(np.interp(t_s, self.t, self.v))
+
+    def accel_at(self, t_s: float) -> tuple[float, float]:
+        """Longitudinal and lateral acceleration [m/s^2] the ECU reports at ``t_s``: the
+        mean of the series over ``accel_period_s`` centred on ``t_s``."""
+        if self._accel_sums is None:
+            raise ValueError("this ECU has no accelerations to send (accel_mps2=None)")
+        if self.loop and self.t.size > 1:
+            t_s = t_s % self.t[-1]
+        half = 0.5 * self.accel_period_s
+        i0, i1 = np.searchsorted(self.t, [t_s - half, t_s + half], side="left")
+        i0 = min(int(i0), self.t.size - 1)
+        i1 = max(int(i1), i0 + 1)
+        return tuple(float((c[i1] - c[i0]) / (i1 - i0)) for c in self._accel_sums)
 
     def _encode(self, msg: Any, values: dict[str, float]) -> bytes:
         full = {}
@@ -754,8 +852,12 @@ class VirtualECU:
         if self.on_send:
             self.on_send(m)
 
-    def step(self, t_s: float, send_speed: bool, send_wheels: bool) -> None:
+    def step(self, t_s: float, send_speed: bool, send_wheels: bool,
+             send_accel: bool = False) -> None:
         """Send the frames due at ``t_s`` (used by the thread; public for tests)."""
+        if send_accel and self.accel_msg is not None:
+            self._send(self.accel_msg, dict(zip(self.accel_signals, self.accel_at(t_s),
+                                                strict=True)))
         v_kmh = self.speed_at(t_s) * 3.6
         if send_speed:
             self._send(self.speed_msg, {self.speed_signal: v_kmh})
@@ -773,19 +875,22 @@ class VirtualECU:
         self._t0 = time.monotonic()
         now = self.time_fn or (lambda: time.monotonic() - self._t0)
         next_speed = next_wheel = now()
+        next_accel = next_speed if self.accel_msg is not None else math.inf
         try:
             while not self._stop.is_set():
                 t = now()
                 if not self.loop and t > self.t[-1] + 1.0:
                     break
-                due_s, due_w = t >= next_speed, t >= next_wheel
-                if due_s or due_w:
-                    self.step(t, due_s, due_w)
+                due_s, due_w, due_a = t >= next_speed, t >= next_wheel, t >= next_accel
+                if due_s or due_w or due_a:
+                    self.step(t, due_s, due_w, due_a)
                     if due_s:
                         next_speed += self.speed_period_s
                     if due_w:
                         next_wheel += self.wheel_period_s
-                wait = min(next_speed, next_wheel) - now()
+                    if due_a:
+                        next_accel += self.accel_period_s
+                wait = min(next_speed, next_wheel, next_accel) - now()
                 if wait > 0:
                     self._stop.wait(wait)
         except Exception as exc:  # a bus error ends the ECU; keep the reason

@@ -8,9 +8,16 @@
   noise) in real time on a pseudo-terminal, read back through the real serial driver;
   faults (corrupted bytes, garbage, a stall, a pulled cable) are injected by the device;
 * the virtual ECU (:class:`drivers.virtual.VirtualECU`) publishes the drive's speed and
-  wheel speeds on an in-process python-can ``virtual`` bus at the session time it sends
-  them, read by the real CAN driver (signals ``vehicle_speed`` (role speed) and
-  ``WHEEL_SPEED_FL/FR/RL/RR``, in m/s);
+  wheel speeds on an in-process python-can ``virtual`` bus, read by the real CAN driver
+  (signals ``vehicle_speed`` (role speed) and ``WHEEL_SPEED_FL/FR/RL/RR``, in m/s). It
+  plays the drive in step with the virtual DAQ (:meth:`drivers.virtual.VirtualDAQ.
+  data_time_s`): what it sends at the time DAQ sample k is acquired is the drive at
+  sample k;
+* in full-vehicle mode (``full_vehicle=True``, or a full-vehicle ``drive``) the drive is
+  :func:`fielddiag.vehicle.simulate_vehicle`'s: eight DAQ channels given their corner
+  roles by the serial driver's channel map, and the ECU also sends the car's
+  longitudinal and lateral accelerations (:mod:`fielddiag.virtual_streams`); the session
+  is a full-vehicle session (:func:`fielddiag.vehicle.read_vehicle_recording`);
 * other sources (a real serial DAQ, a real CAN bus) may be recorded alongside.
 
 The drive is streamed once (``fielddiag demo``: :func:`record_virtual_drive`) or in a loop
@@ -33,17 +40,18 @@ from typing import Any
 from drivers.base import Source
 from fielddiag.channels import SessionMetadata
 from fielddiag.errors import DeviceError, FieldDiagError
+from fielddiag.virtual_streams import (
+    ECU_SIGNALS,
+    DriveStream,
+    full_vehicle_stream,
+    is_vehicle_drive,
+    quarter_car_stream,
+)
 
 __all__ = ["ECU_SIGNALS", "LOOP_DRIVE_S", "VirtualDrive", "record_virtual_drive"]
 
-#: The DBC signals of the virtual ECU that are decoded and stored (SI: m/s).
-ECU_SIGNALS = ["vehicle_speed=SPEED.SPEED"] + [
-    f"WHEEL_SPEEDS.WHEEL_SPEED_{w}" for w in ("FL", "FR", "RL", "RR")
-]
 #: Length of the drive streamed in a loop when a recording has no set length [s].
 LOOP_DRIVE_S = 120.0
-#: Output rate of a drive simulated for the virtual ECU alone (only its speed is used).
-_SPEED_ONLY_RATE_HZ = 100.0
 #: Longest wait for the on-line estimator (compiled before the start) to be attached.
 _ONLINE_ATTACH_S = 10.0
 
@@ -68,7 +76,8 @@ class VirtualDrive:
     metadata : SessionMetadata or None
         Vehicle, corner, operator, notes and the added mass [kg], which is also the mass
         put on the simulated body. ``extra["virtual_drive"]`` (seed, rate [Hz], drive
-        length [s], loop) and, with ``include_recipe``, ``extra["simulation"]`` are added.
+        length [s], loop) and, with ``include_recipe``, ``extra["simulation"]`` are added;
+        a full-vehicle drive adds the vehicle file and where the added mass sits.
     sample_rate_hz : float
         Rate of the virtual DAQ [Hz].
     n_channels : int
@@ -76,9 +85,17 @@ class VirtualDrive:
     seed : int
         Seeds the simulated road, speed profile, noise and the devices' faults.
     params, effects, road_class : optional
-        Passed to the simulator (default car, no effects, ISO 8608 class C road).
-    drive : fielddiag.sim.SimulatedDrive or None
-        Stream this drive instead of simulating one (its rate and added mass are used).
+        Passed to the simulator (default car, no effects, ISO 8608 class C road). Full
+        vehicle: a ``VehicleParams`` and a mapping corner -> effects.
+    drive : fielddiag.sim.SimulatedDrive, fielddiag.vehicle.VehicleDrive or None
+        Stream this drive instead of simulating one (its rate and added mass are used; a
+        full-vehicle drive sets full-vehicle mode).
+    full_vehicle : bool
+        Simulate and stream a full vehicle (eight channels, see the module docstring).
+    added_mass_at_m : (x_m, y_m) or None
+        Full vehicle: where the added mass sits (required with an added mass).
+    manoeuvre : str
+        Full vehicle: ``rough_road``, ``ramp_steer`` or ``braking``.
     loop : bool
         Stream the drive again and again (a recording as long as the user wants).
     faults : mapping or None
@@ -122,6 +139,9 @@ class VirtualDrive:
         effects: Sequence[Any] = (),
         road_class: str | None = "C",
         drive: Any = None,
+        full_vehicle: bool = False,
+        added_mass_at_m: tuple[float, float] | None = None,
+        manoeuvre: str = "rough_road",
         loop: bool = False,
         faults: Mapping[str, Any] | None = None,
         online: bool | Mapping[str, Any] = False,
@@ -141,8 +161,13 @@ class VirtualDrive:
         self.sample_rate_hz = float(sample_rate_hz)
         self.n_channels = max(2, int(n_channels))
         self.seed = int(seed)
-        self.sim_options = {"params": params, "effects": tuple(effects),
-                            "road_class": road_class}
+        self.full_vehicle = bool(full_vehicle) or is_vehicle_drive(drive)
+        self.sim_options: dict[str, Any] = {"params": params, "road_class": road_class}
+        if self.full_vehicle:
+            self.sim_options.update(effects=dict(effects or {}), manoeuvre=manoeuvre,
+                                    added_mass_at_m=added_mass_at_m)
+        else:
+            self.sim_options["effects"] = tuple(effects)
         self.drive = drive
         self.loop = bool(loop)
         self.faults = dict(faults or {})
@@ -185,14 +210,14 @@ class VirtualDrive:
         if online_kw is not None:
             online_kw = self._warm_up(online_kw)
         try:
-            drive, sources = self._start_devices()
-            self.recorder = Recorder(self.path, sources, metadata=self._metadata(drive),
+            stream, sources = self._start_devices()
+            self.recorder = Recorder(self.path, sources, metadata=self._metadata(stream),
                                      overwrite=self.overwrite)
             self.recorder.start()
             if online_kw is not None:
                 self._attach_online(online_kw)
             if self.ecu_device is not None:
-                self.ecu_device.time_fn = self.recorder.clock.now  # speed at the session time
+                self.ecu_device.time_fn = self._ecu_clock()
                 self.ecu_device.start()
         except BaseException:
             self._stop_quietly()
@@ -215,6 +240,10 @@ class VirtualDrive:
         if not (self.virtual_daq or any(s.kind == "daq" for s in self.other_sources)):
             self.online_error = "no DAQ: nothing to estimate from"
             return None
+        if self.full_vehicle:
+            self.online_error = ("the on-line estimate is for one corner (a wheel and a body "
+                                 "channel), not the full vehicle")
+            return None
         try:
             from fielddiag.identify.online import OnlineEstimator
 
@@ -226,35 +255,42 @@ class VirtualDrive:
             return None
         return online_kw
 
-    def _start_devices(self) -> tuple[Any, list[Source]]:
-        """The simulated drive, and the sources in order: virtual DAQ, others, ECU."""
-        from drivers.virtual import VirtualDAQ, simulated_accelerations
+    def _stream(self) -> DriveStream | None:
+        """What the virtual devices play (simulated now unless a drive was given)."""
+        if not (self.virtual_daq or self.virtual_ecu):
+            return None
+        common = {"drive_s": self.drive_s, "sample_rate_hz": self.sample_rate_hz,
+                  "added_mass_kg": self.metadata.added_mass_kg, "seed": self.seed,
+                  "with_daq": self.virtual_daq, "drive": self.drive, **self.sim_options}
+        if self.full_vehicle:
+            return full_vehicle_stream(**common)
+        return quarter_car_stream(n_channels=self.n_channels, **common)
 
-        drive = self.drive
+    def _start_devices(self) -> tuple[DriveStream | None, list[Source]]:
+        """What is played, and the sources in order: virtual DAQ, others, ECU."""
+        from drivers.virtual import VirtualDAQ
+
+        stream = self._stream()
         daq_sources: list[Source] = []
         if self.virtual_daq:
             from drivers.serial_daq import SerialDAQSource
 
-            signals, drive = simulated_accelerations(
-                self.drive_s, sample_rate_hz=self.sample_rate_hz, n_channels=self.n_channels,
-                added_mass_kg=self.metadata.added_mass_kg, seed=self.seed, drive=drive,
-                **self.sim_options)
+            scale = {} if stream.full_scale_mps2 is None else {
+                "full_scale_mps2": stream.full_scale_mps2}
             self.daq_device = VirtualDAQ(
-                signals, sample_rate_hz=self.sample_rate_hz, loop=self.loop, seed=self.seed,
-                link_name=f"ttyVDAQ{uuid.uuid4().hex[:6]}", **self.faults)
+                stream.signals_mps2, sample_rate_hz=self.sample_rate_hz, loop=self.loop,
+                seed=self.seed, roles=stream.daq_roles,
+                link_name=f"ttyVDAQ{uuid.uuid4().hex[:6]}", **scale, **self.faults)
             self.daq_device.start()
-            daq_sources.append(SerialDAQSource.from_url(f"serial://{self.daq_device.path}"))
+            src = SerialDAQSource.from_url(f"serial://{self.daq_device.path}")
+            src.role_map = stream.role_map
+            daq_sources.append(src)
         can_sources: list[Source] = []
         if self.virtual_ecu:
-            if drive is None:  # only the speed profile is needed
-                _, drive = simulated_accelerations(
-                    self.drive_s, sample_rate_hz=_SPEED_ONLY_RATE_HZ,
-                    added_mass_kg=self.metadata.added_mass_kg, seed=self.seed,
-                    **self.sim_options)
-            can_sources.append(self._virtual_ecu_source(drive))
-        return drive, daq_sources + self.other_sources + can_sources
+            can_sources.append(self._virtual_ecu_source(stream))
+        return stream, daq_sources + self.other_sources + can_sources
 
-    def _virtual_ecu_source(self, drive: Any) -> Source:
+    def _virtual_ecu_source(self, stream: DriveStream) -> Source:
         import can
 
         from drivers.can_vehicle import CanBusSource
@@ -262,23 +298,41 @@ class VirtualDrive:
 
         channel = f"fielddiag-vecu-{uuid.uuid4().hex[:8]}"
         self._bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
-        self.ecu_device = VirtualECU(self._bus, drive.vehicle_speed_time_s,
-                                     drive.vehicle_speed_mps, loop=self.loop, seed=self.seed)
+        self.ecu_device = VirtualECU(self._bus, stream.speed_time_s, stream.speed_mps,
+                                     accel_mps2=stream.accel_mps2, loop=self.loop,
+                                     seed=self.seed)
         src = CanBusSource.from_url(f"can://virtual/{channel}")
         src.dbc = self.ecu_device.db
         src.dbc_label = "drivers.virtual.VIRTUAL_ECU_DBC"
-        src.add_signals(ECU_SIGNALS)
+        src.add_signals(stream.ecu_signals)
         return src
 
-    def _metadata(self, drive: Any) -> SessionMetadata:
+    def _ecu_clock(self) -> Callable[[], float]:
+        """The virtual ECU's clock: the virtual DAQ's data time (the two play one drive in
+        step), else the session time."""
+        daq = self.daq_device
+        if daq is None:
+            return self.recorder.clock.now
+
+        def data_time() -> float:
+            t = daq.data_time_s()
+            return 0.0 if t is None else t
+
+        return data_time
+
+    def _metadata(self, stream: DriveStream | None) -> SessionMetadata:
         extra = dict(self.metadata.extra)
-        if drive is not None:
+        meta = self.metadata
+        if stream is not None:
+            drive = stream.drive
+            extra.update(stream.extra)
             extra["virtual_drive"] = {"seed": self.seed, "rate_hz": self.sample_rate_hz,
                                       "drive_s": drive.time_s.size / drive.sample_rate_hz,
                                       "loop": self.loop}
             if self.include_recipe:
-                extra["simulation"] = drive.to_dict()
-        return replace(self.metadata, extra=extra)
+                extra["simulation"] = stream.recipe
+            meta = replace(meta, added_mass_kg=float(drive.added_mass_kg))
+        return replace(meta, extra=extra)
 
     def _attach_online(self, online_kw: dict[str, Any]) -> None:
         rec = self.recorder
@@ -450,6 +504,8 @@ def record_virtual_drive(
     effects: Sequence[Any] = (),
     road_class: str | None = "C",
     drive: Any = None,
+    full_vehicle: bool = False,
+    added_mass_at_m: tuple[float, float] | None = None,
     operator: str = "fielddiag demo",
     notes: str = "",
     include_recipe: bool = True,
@@ -460,8 +516,9 @@ def record_virtual_drive(
     """Record a simulated drive through the virtual DAQ (pty) and the virtual ECU.
 
     The drive is simulated with :func:`fielddiag.sim.simulate` (``added_mass_kg`` on the
-    body) and streamed once, in real time, by a :class:`VirtualDrive`: it takes
-    ``duration_s`` of wall-clock time.
+    body; :func:`fielddiag.vehicle.simulate_vehicle` for a full vehicle) and streamed
+    once, in real time, by a :class:`VirtualDrive`: it takes ``duration_s`` of wall-clock
+    time.
 
     Parameters
     ----------
@@ -484,8 +541,13 @@ def record_virtual_drive(
         DAQ channels (>= 2).
     params, effects, road_class : optional
         Passed to the simulator (default car, no effects, ISO class C road).
-    drive : fielddiag.sim.SimulatedDrive or None
+    drive : fielddiag.sim.SimulatedDrive, fielddiag.vehicle.VehicleDrive or None
         Stream this drive instead of simulating one (its rate and added mass are used).
+    full_vehicle : bool
+        Record a full vehicle (eight DAQ channels, the car's accelerations on CAN); set
+        by a full-vehicle ``drive``.
+    added_mass_at_m : (x_m, y_m) or None
+        Full vehicle: where the added mass sits.
     include_recipe : bool
         Store how the drive was made in ``extra["simulation"]``.
     overwrite : bool
@@ -514,7 +576,8 @@ def record_virtual_drive(
     run = VirtualDrive(
         path, drive_s=duration_s + 2.0, metadata=meta, sample_rate_hz=rate_hz,
         n_channels=n_channels, seed=seed, params=params, effects=effects,
-        road_class=road_class, drive=drive, faults=faults, online=online,
+        road_class=road_class, drive=drive, full_vehicle=full_vehicle,
+        added_mass_at_m=added_mass_at_m, faults=faults, online=online,
         include_recipe=include_recipe, overwrite=overwrite,
     ).start()
     run.record_for(duration_s, progress=progress)

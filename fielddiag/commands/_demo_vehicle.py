@@ -1,12 +1,14 @@
 """``fielddiag demo --full-vehicle``: a whole car end to end with no hardware.
 
-1. Simulates three drives of a car with a worn rear-left damper (30 % weaker than the
-   rear-right one) and dry friction in the front-left strut
-   (:func:`fielddiag.vehicle.simulate_vehicle`, eight accelerometers, speed and the car's
-   accelerations) and writes them as full-vehicle sessions: rough road as the car is,
+1. Records three drives of a car with a worn rear-left damper (30 % weaker than the
+   rear-right one) and dry friction in the front-left strut: rough road as the car is,
    rough road with a known mass added at a known place, and braking (to validate on).
-   The 8-channel virtual DAQ/ECU recording path does not exist yet; the sessions are
-   written by the simulator's writer.
+   Each is simulated (:func:`fielddiag.vehicle.simulate_vehicle`) and recorded through
+   the virtual devices, all three at once and in real time: an 8-channel virtual DAQ on
+   a pseudo-terminal read by the real serial driver, whose channel map gives each channel
+   its corner role, and a virtual ECU sending speed and the car's longitudinal and
+   lateral accelerations on a python-can virtual bus, read by the real CAN driver
+   (:mod:`fielddiag.virtual_drive`).
 2. Identifies the body (mass, centre of gravity, inertias), the four corners and the
    anti-roll bars, cross-validated on the braking drive.
 3. Diagnoses per corner and prints the findings.
@@ -44,8 +46,30 @@ def demo_car(seed: int = 1):
     return car.with_corner(WORN_CORNER, damping_ns_per_m=WORN_RATIO * partner)
 
 
+def demo_drives(car, duration_s: float, added_mass_kg: float,
+                added_mass_at_m: tuple[float, float], seed: int) -> dict:
+    """The demo's three simulated drives of ``car`` (with the friction at the front left).
+
+    Returns
+    -------
+    dict
+        ``before`` (rough road), ``after`` (rough road with the added mass), ``braking``
+        (to validate on): :class:`~fielddiag.vehicle.VehicleDrive`.
+    """
+    from fielddiag.effects import CoulombFriction
+    from fielddiag.vehicle import simulate_vehicle
+
+    effects = {FRICTION_CORNER: [CoulombFriction(friction_force_n=FRICTION_N)]}
+    runs = {"before": {"seed": seed},
+            "after": {"seed": seed + 1, "added_mass_kg": added_mass_kg,
+                      "added_mass_at_m": added_mass_at_m},
+            "braking": {"seed": seed + 2, "manoeuvre": "braking"}}
+    return {label: simulate_vehicle(car, duration_s=duration_s, effects=effects, **kw)
+            for label, kw in runs.items()}
+
+
 def run_full_vehicle(args: argparse.Namespace, run_dir: Path) -> int:
-    """Simulate, identify, diagnose (and serve) the full-vehicle demo car.
+    """Record, identify, diagnose (and serve) the full-vehicle demo car.
 
     Parameters
     ----------
@@ -61,29 +85,25 @@ def run_full_vehicle(args: argparse.Namespace, run_dir: Path) -> int:
         0.
     """
     from fielddiag.catalog import result_path
-    from fielddiag.effects import CoulombFriction
-    from fielddiag.vehicle import read_vehicle_recording, simulate_vehicle
+    from fielddiag.commands.demo import record_drives
+    from fielddiag.vehicle import read_vehicle_recording
     from fielddiag.vehicle.diagnose import diagnose_vehicle, format_vehicle_summary
     from fielddiag.vehicle.identify import identify_vehicle
-    from fielddiag.vehicle.writer import write_vehicle_session
 
     car = demo_car(args.seed)
     dm = float(args.added_mass)
     at = (ADDED_AT[0] * car.geometry.wheelbase_m, ADDED_AT[1])
-    effects = {FRICTION_CORNER: [CoulombFriction(friction_force_n=FRICTION_N)]}
-    print(f"1/4 simulating three {args.duration:g} s drives of a car with eight "
-          f"accelerometers: rough road, rough road with {dm:g} kg at ({at[0]:.2f}, "
-          f"{at[1]:.2f}) m, braking")
+    print(f"1/4 recording three {args.duration:g} s drives of a car with eight "
+          f"accelerometers (rough road, rough road with {dm:g} kg at ({at[0]:.2f}, "
+          f"{at[1]:.2f}) m, braking) at once, through an 8-channel virtual DAQ (pseudo-"
+          "terminal) and a virtual ECU (speed and accelerations on CAN)")
     t0 = time.perf_counter()
-    paths = []
-    for label, kw in (("before", {"seed": args.seed}),
-                      ("after", {"seed": args.seed + 1, "added_mass_kg": dm,
-                                 "added_mass_at_m": at}),
-                      ("braking", {"seed": args.seed + 2, "manoeuvre": "braking"})):
-        drive = simulate_vehicle(car, duration_s=args.duration, effects=effects, **kw)
-        paths.append(write_vehicle_session(drive, run_dir / f"{label}.h5",
-                                           vehicle_name="demo car (full vehicle)"))
-    print(f"    written {', '.join(p.name for p in paths)} in "
+    drives = demo_drives(car, args.duration + 2.0, dm, at, args.seed)
+    paths = record_drives(run_dir, {
+        label: {"drive": drive, "vehicle": "demo car (full vehicle)", "corner": "",
+                "notes": f"full-vehicle demo drive {label}"}
+        for label, drive in drives.items()}, args.duration)
+    print(f"    recorded {', '.join(p.name for p in paths)} in "
           f"{time.perf_counter() - t0:.0f} s")
     before = read_vehicle_recording(paths[0], label="before")
     after = read_vehicle_recording(paths[1], label="after")

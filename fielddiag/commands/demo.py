@@ -27,6 +27,11 @@ DEFAULT_ADDED_MASS_KG = 60.0
 #: Shortest drive the demo records: the identification needs 30 s of data, and a drive
 #: recorded for 30 s holds slightly less (the first frames arrive after the start).
 MIN_DURATION_S = 32.0
+DEFAULT_DURATION_S = 120.0
+#: The full vehicle's: its identification needs 40 s of each drive
+#: (``VehicleIdentifyConfig.min_duration_s``), plus the same margin.
+FULL_VEHICLE_MIN_DURATION_S = 42.0
+FULL_VEHICLE_DURATION_S = 60.0
 #: The demo car's hidden physics: dry friction in the strut (concealed: the linear model
 #: alone fits its body acceleration well by eye).
 DEMO_EFFECTS = (("coulomb_friction", {"friction_force_n": 70.0}),)
@@ -38,9 +43,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--out", default="fielddiag-demo", help="folder for the demo's runs")
     p.add_argument("--duration", type=arg_number("--duration", "sim_duration"),
-                   default=120.0, metavar="S",
-                   help=f"length of each recorded drive (real time; default 120, at least "
-                        f"{MIN_DURATION_S:g})")
+                   default=None, metavar="S",
+                   help=f"length of each recorded drive (real time, the drives are recorded "
+                        f"at once; default {DEFAULT_DURATION_S:g}, at least {MIN_DURATION_S:g}; "
+                        f"with --full-vehicle default {FULL_VEHICLE_DURATION_S:g}, at least "
+                        f"{FULL_VEHICLE_MIN_DURATION_S:g})")
     p.add_argument("--added-mass", type=arg_number("--added-mass", "added_mass"),
                    default=None, metavar="KG",
                    help=f"mass added on the body for the second drive (default "
@@ -69,30 +76,44 @@ def _new_run_dir(root: Path) -> Path:
     return run
 
 
-def _record_pair(run_dir: Path, args: argparse.Namespace) -> list[Path]:
-    """Record before and after concurrently through the virtual devices, with progress."""
-    from fielddiag import sim
+def record_drives(run_dir: Path, drives: dict[str, dict], duration_s: float) -> list[Path]:
+    """Record drives at once through the virtual devices, showing their progress.
+
+    Parameters
+    ----------
+    run_dir : Path
+        Folder of the sessions (``<label>.h5``).
+    drives : dict
+        Label -> keyword arguments of :func:`fielddiag.virtual_drive.record_virtual_drive`
+        (each drive on its own pseudo-terminal and CAN bus).
+    duration_s : float
+        Length of each recording [s] (real time).
+
+    Returns
+    -------
+    list of Path
+        The sessions, in the order of ``drives``.
+
+    Raises
+    ------
+    FieldDiagError
+        The first recording that failed (the others are finished first).
+    """
     from fielddiag.virtual_drive import record_virtual_drive
 
-    effects = [sim.make_effect(n, **p) for n, p in DEMO_EFFECTS]
-    labels = (("before", 0.0, args.seed), ("after", args.added_mass, args.seed + 1))
     status: dict[str, dict] = {}
     results: dict[str, Path] = {}
     errors: list[BaseException] = []
 
-    def worker(label: str, mass: float, seed: int) -> None:
+    def worker(label: str) -> None:
         try:
             results[label] = record_virtual_drive(
-                run_dir / f"{label}.h5", duration_s=args.duration, added_mass_kg=mass,
-                seed=seed, vehicle="demo car", corner="front-left", effects=effects,
-                notes=f"demo drive {label}, {args.added_mass:g} kg added for 'after'",
-                include_recipe=False,
-                progress=lambda st, label=label: status.__setitem__(label, st),
-            )
+                run_dir / f"{label}.h5", duration_s=duration_s,
+                progress=lambda st: status.__setitem__(label, st), **drives[label])
         except BaseException as exc:  # reported by the main thread
             errors.append(exc)
 
-    threads = [threading.Thread(target=worker, args=lab, daemon=True) for lab in labels]
+    threads = [threading.Thread(target=worker, args=(label,), daemon=True) for label in drives]
     for t in threads:
         t.start()
     tty = sys.stdout.isatty()
@@ -103,10 +124,10 @@ def _record_pair(run_dir: Path, args: argparse.Namespace) -> list[Path]:
             continue
         last = time.monotonic()
         parts = []
-        for label, *_ in labels:
+        for label in drives:
             st = status.get(label, {})
             parts.append(
-                f"{label}: {st.get('elapsed_s', 0.0):5.1f}/{args.duration:g} s, "
+                f"{label}: {st.get('elapsed_s', 0.0):5.1f}/{duration_s:g} s, "
                 f"{st.get('frames_received', 0)} frames, {st.get('frames_lost', 0)} lost"
             )
         line = "  recording  " + " | ".join(parts)
@@ -117,7 +138,22 @@ def _record_pair(run_dir: Path, args: argparse.Namespace) -> list[Path]:
         t.join()
     if errors:
         raise errors[0]
-    return [results["before"], results["after"]]
+    return [results[label] for label in drives]
+
+
+def _record_pair(run_dir: Path, args: argparse.Namespace) -> list[Path]:
+    """Record before and after concurrently through the virtual devices, with progress."""
+    from fielddiag import sim
+
+    effects = [sim.make_effect(n, **p) for n, p in DEMO_EFFECTS]
+    common = {"vehicle": "demo car", "corner": "front-left", "effects": effects,
+              "include_recipe": False}
+    return record_drives(run_dir, {
+        label: {"added_mass_kg": mass, "seed": seed, **common,
+                "notes": f"demo drive {label}, {args.added_mass:g} kg added for 'after'"}
+        for label, mass, seed in (("before", 0.0, args.seed),
+                                  ("after", args.added_mass, args.seed + 1))
+    }, args.duration)
 
 
 def _store_beside_sessions(result: dict, kind: str, sessions: list[Path]) -> None:
@@ -134,11 +170,14 @@ def _store_beside_sessions(result: dict, kind: str, sessions: list[Path]) -> Non
 def run(args: argparse.Namespace) -> int:
     from fielddiag.errors import FieldDiagError
 
-    if args.duration < MIN_DURATION_S:
+    shortest = FULL_VEHICLE_MIN_DURATION_S if args.full_vehicle else MIN_DURATION_S
+    if args.duration is None:
+        args.duration = FULL_VEHICLE_DURATION_S if args.full_vehicle else DEFAULT_DURATION_S
+    if args.duration < shortest:
         raise FieldDiagError(
-            f"--duration {args.duration:g}: give at least {MIN_DURATION_S:g} s; the "
-            "identification needs 30 s of each drive, and a recording holds a little less "
-            "than it ran for")
+            f"--duration {args.duration:g}: give at least {shortest:g} s; the "
+            f"identification needs {shortest - 2:g} s of each drive, and a recording holds a "
+            "little less than it ran for")
     if args.full_vehicle:
         from fielddiag.commands._demo_vehicle import DEFAULT_ADDED_MASS_KG as full_kg
         from fielddiag.commands._demo_vehicle import run_full_vehicle

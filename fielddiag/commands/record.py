@@ -7,11 +7,23 @@
 
     fielddiag record --virtual -o drive.h5 --duration 60 --added-mass 40
 
+A full vehicle (eight accelerometers on one DAQ, the car's speed and accelerations on CAN):
+say which channel is which sensor with --role ROLE=CHANNEL (channel numbers from 0), give
+the vehicle file, and name the CAN signals by their roles' aliases::
+
+    fielddiag record --daq serial:///dev/ttyUSB0 --role wheel_fl=0 --role body_fl=1 \\
+        --role wheel_fr=2 --role body_fr=3 --role wheel_rl=4 --role body_rl=5 \\
+        --role wheel_rr=6 --role body_rr=7 --vehicle-file car.json \\
+        --can "can://socketcan/can0?dbc=car.dbc" --signal vehicle_speed=SPEED.SPEED \\
+        --signal accel_long=KINEMATICS.ACCEL_X --signal accel_lat=KINEMATICS.ACCEL_Y \\
+        --added-mass 150 --added-mass-at 1.9,0.3 -o after.h5
+
 ``--virtual`` records a simulated car instead: the virtual DAQ on a pseudo-terminal read
 by the real serial driver and the virtual ECU on python-can's virtual bus read by the real
 CAN driver (:mod:`fielddiag.virtual_drive`, as ``fielddiag demo`` and the dashboard do);
 the drive is simulated with the added mass on the body and streamed once for --duration,
-or in a loop until Ctrl-C.
+or in a loop until Ctrl-C. ``--virtual --full-vehicle`` records the default full vehicle
+(``VehicleParams()``) the same way: eight channels, speed and accelerations.
 
 A status line shows rates, frames lost, CRC errors, buffer fill and elapsed time; with a
 wheel and a body channel, two more lines show the on-line estimate (value ± relative
@@ -28,7 +40,9 @@ import argparse
 import signal
 import sys
 import time
+from pathlib import Path
 
+from fielddiag.commands.identify import arg_position
 from fielddiag.errors import FieldDiagError
 from fielddiag.validate import arg_int, arg_number
 
@@ -63,7 +77,39 @@ def register(sub: argparse._SubParsersAction) -> None:
         action="append",
         default=[],
         help="DBC signal to decode and store: SIGNAL, MESSAGE.SIGNAL or "
-        "ALIAS=MESSAGE.SIGNAL (repeatable; stored in SI: km/h -> m/s, deg -> rad, rpm -> rad/s...)",
+        "ALIAS=MESSAGE.SIGNAL (repeatable; stored in SI: km/h -> m/s, deg -> rad, rpm -> "
+        "rad/s...); the aliases vehicle_speed, accel_long (forward positive) and accel_lat (left "
+        "positive) give the signal that role",
+    )
+    p.add_argument(
+        "--role",
+        metavar="ROLE=CHANNEL",
+        action="append",
+        default=[],
+        help="which DAQ channel (number from 0) is which sensor, e.g. wheel_fl=0 "
+        "(repeatable; unmapped channels are kept as other). A full vehicle maps all eight: "
+        "wheel_fl, body_fl, wheel_fr, body_fr, wheel_rl, body_rl, wheel_rr, body_rr",
+    )
+    p.add_argument(
+        "--vehicle-file",
+        metavar="VEHICLE.json",
+        default=None,
+        help="full vehicle: wheelbase_m, track_front_m, track_rear_m and body_sensors "
+        "positions (see docs/full-vehicle.md)",
+    )
+    p.add_argument(
+        "--added-mass-at",
+        type=arg_position,
+        metavar="X_M,Y_M",
+        default=None,
+        help="full vehicle: where the added mass sits, metres behind the front axle and "
+        "left of the centre line",
+    )
+    p.add_argument(
+        "--full-vehicle",
+        action="store_true",
+        help="with --virtual: a simulated full vehicle (eight accelerometers, speed and "
+        "accelerations on CAN)",
     )
     p.add_argument(
         "--speed-signal",
@@ -118,8 +164,76 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def build_sources(args: argparse.Namespace) -> list:
-    """The sources named on the command line, configured (not opened)."""
+def full_vehicle_options(args: argparse.Namespace) -> tuple[dict[int, str], dict]:
+    """The channel map (``--role``) and the full-vehicle metadata ``extra``, checked.
+
+    Returns
+    -------
+    channel_map : dict
+        Channel index -> role (empty: the DAQ's own roles).
+    extra : dict
+        The vehicle file and where the added mass sits (empty: not a full vehicle).
+
+    Raises
+    ------
+    FieldDiagError
+        A bad map, a full-vehicle map without a vehicle file (or the reverse), a bad
+        vehicle file, an added mass on a full vehicle without its position, a position
+        without a full vehicle or without a mass.
+    """
+    channel_map: dict[int, str] = {}
+    full = False
+    if args.role or args.vehicle_file:
+        if args.virtual:
+            raise FieldDiagError("--virtual records the virtual DAQ with its own channels and "
+                                 "car: leave out --role and --vehicle-file")
+        if not args.daq:
+            raise FieldDiagError("--role and --vehicle-file describe a DAQ's channels: give "
+                                 "--daq URL")
+    if args.full_vehicle and not args.virtual:
+        raise FieldDiagError("--full-vehicle is for --virtual; a real DAQ records the full "
+                             "vehicle with its channel map (--role wheel_fl=CHANNEL ... "
+                             "--vehicle-file VEHICLE.json)")
+    if args.role:
+        from fielddiag.vehicle.corner_map import is_full_vehicle, parse_channel_map
+
+        channel_map = parse_channel_map(args.role)
+        full = is_full_vehicle(channel_map)
+        if full and not args.vehicle_file:
+            raise FieldDiagError("a full-vehicle recording needs the vehicle file: give "
+                                 "--vehicle-file VEHICLE.json (wheelbase, tracks, body-sensor "
+                                 "positions)")
+    if args.vehicle_file and not full:
+        raise FieldDiagError("--vehicle-file is for a full-vehicle recording: map the eight "
+                             "sensors with --role wheel_fl=CHANNEL ... --role body_rr=CHANNEL")
+    full = full or args.full_vehicle
+    if full and args.added_mass > 0 and args.added_mass_at is None:
+        raise FieldDiagError(f"--added-mass {args.added_mass:g} on a full vehicle: say where "
+                             "it sits with --added-mass-at X_M,Y_M (metres behind the front "
+                             "axle, left of the centre line)")
+    if args.added_mass_at is not None and not full:
+        raise FieldDiagError("--added-mass-at is for a full-vehicle recording (--role "
+                             "wheel_fl=CHANNEL ... --vehicle-file, or --virtual --full-vehicle)")
+    if args.added_mass_at is not None and args.added_mass <= 0:
+        raise FieldDiagError("--added-mass-at says where the added mass sits: give "
+                             "--added-mass KG too (or leave --added-mass-at out for the drive "
+                             "as the car is)")
+    extra: dict = {}
+    if full and not args.virtual:
+        from fielddiag.vehicle.geometry import load_vehicle
+        from fielddiag.vehicle.recording import full_vehicle_extra
+
+        extra = full_vehicle_extra(load_vehicle(args.vehicle_file), args.added_mass_at)
+    return channel_map, extra
+
+
+def build_sources(args: argparse.Namespace, channel_map: dict[int, str] | None = None
+                  ) -> list:
+    """The sources named on the command line, configured (not opened).
+
+    ``channel_map`` (channel index -> role, from ``--role``) is given to the DAQ source,
+    which applies it once the device has said how many channels it has.
+    """
     from drivers.base import open_source, parse_source_url
     from drivers.can_vehicle import CanBusSource, _CanSource
 
@@ -130,6 +244,11 @@ def build_sources(args: argparse.Namespace) -> list:
         src = open_source(args.daq)
         if src.kind != "daq":
             raise FieldDiagError(f"--daq {args.daq} is not a DAQ source; use --can for CAN")
+        if channel_map:
+            if not hasattr(src, "role_map"):
+                raise FieldDiagError(f"--daq {args.daq}: this source takes no channel map "
+                                     "(--role); use the device's own roles")
+            src.role_map = dict(channel_map)
         sources.append(src)
     for i, url in enumerate(args.can):
         src = open_source(url)
@@ -153,17 +272,22 @@ def run(args: argparse.Namespace) -> int:
     from fielddiag.recorder import Recorder
 
     check_target(args.output, overwrite=args.overwrite)
+    channel_map, extra = full_vehicle_options(args)
+    vehicle = args.vehicle
+    if extra and not vehicle:
+        vehicle = Path(args.vehicle_file).stem
     meta = SessionMetadata(
-        vehicle=args.vehicle,
+        vehicle=vehicle,
         corner=args.corner,
         operator=args.operator,
         added_mass_kg=args.added_mass,
         notes=args.notes,
+        extra=extra,
     )
     if args.virtual:
         run_ = virtual_drive(args, meta)
     else:
-        rec = Recorder(args.output, build_sources(args), metadata=meta,
+        rec = Recorder(args.output, build_sources(args, channel_map), metadata=meta,
                        overwrite=args.overwrite)
     if threading_main():
         signal.signal(signal.SIGTERM, _interrupt)
@@ -184,7 +308,8 @@ def run(args: argparse.Namespace) -> int:
         sigs = ", ".join(s.name for s in rec.signals) or "none"
         print(
             f"recording to {args.output}\n  channels: {chans}\n  signals: {sigs}\n"
-            "  Ctrl-C to stop",
+            + "".join(f"  warning: {w}\n" for w in missing_vehicle_signals(rec))
+            + "  Ctrl-C to stop",
             file=sys.stderr,
             flush=True,
         )
@@ -217,6 +342,19 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def missing_vehicle_signals(rec: object) -> list[str]:
+    """Warnings for a full-vehicle recording without the speed or the car's accelerations."""
+    if not any(c.role.startswith(("wheel_", "body_")) for c in rec.channels):
+        return []  # not a full vehicle (and fielddiag.vehicle is not worth importing)
+    from fielddiag.vehicle.recording import VEHICLE_SIGNAL_ROLES
+
+    have = {s.role for s in rec.signals}
+    alias = {"speed": "vehicle_speed"}
+    return [f"no CAN signal with role {r}: the full-vehicle identification takes it as 0; "
+            f"record it with --signal {alias.get(r, r)}=MESSAGE.SIGNAL"
+            for r in VEHICLE_SIGNAL_ROLES if r not in have]
+
+
 def virtual_drive(args: argparse.Namespace, meta: object):
     """The :class:`fielddiag.virtual_drive.VirtualDrive` of ``--virtual`` (not started)."""
     from fielddiag.virtual_drive import LOOP_DRIVE_S, VirtualDrive
@@ -227,7 +365,9 @@ def virtual_drive(args: argparse.Namespace, meta: object):
     once = args.duration is not None
     return VirtualDrive(
         args.output, drive_s=args.duration + 2.0 if once else LOOP_DRIVE_S, loop=not once,
-        metadata=meta, seed=args.seed, online=not args.no_online, overwrite=args.overwrite)
+        metadata=meta, seed=args.seed, online=not (args.no_online or args.full_vehicle),
+        full_vehicle=args.full_vehicle, added_mass_at_m=args.added_mass_at,
+        overwrite=args.overwrite)
 
 
 def threading_main() -> bool:

@@ -22,7 +22,7 @@ from fielddiag.errors import ChannelNotFoundError, SessionError
 from fielddiag.vehicle.geometry import VehicleFileError, VehicleGeometry
 
 __all__ = ["FULL_VEHICLE_ROLES", "VEHICLE_SIGNAL_ROLES", "VehicleRecording",
-           "is_full_vehicle_session", "read_vehicle_recording"]
+           "full_vehicle_extra", "is_full_vehicle_session", "read_vehicle_recording"]
 
 #: The eight accelerometer roles of a full-vehicle session.
 FULL_VEHICLE_ROLES = tuple(f"{k}_{c}" for k in ("wheel", "body") for c in CORNERS)
@@ -86,6 +86,28 @@ class VehicleRecording:
         v = {"speed": self.speed_mps, "accel_long": self.accel_long_mps2,
              "accel_lat": self.accel_lat_mps2}[which]
         return np.zeros(self.n) if v is None else np.asarray(v, float)[: self.n]
+
+
+def full_vehicle_extra(geometry: VehicleGeometry,
+                       added_mass_at_m: tuple[float, float] | None = None) -> dict:
+    """The metadata ``extra`` of a full-vehicle session (what its writers store).
+
+    Parameters
+    ----------
+    geometry : VehicleGeometry
+        The vehicle file (``extra["vehicle"]``).
+    added_mass_at_m : (x_m, y_m) or None
+        Where the added mass sits (``extra["added_mass_at_m"]``); None: not stored.
+
+    Returns
+    -------
+    dict
+        ``{"vehicle": ..., "full_vehicle": True[, "added_mass_at_m": [x, y]]}``.
+    """
+    extra: dict = {"vehicle": geometry.to_dict(), "full_vehicle": True}
+    if added_mass_at_m is not None:
+        extra["added_mass_at_m"] = [float(added_mass_at_m[0]), float(added_mass_at_m[1])]
+    return extra
 
 
 def is_full_vehicle_session(path: str | os.PathLike) -> bool:

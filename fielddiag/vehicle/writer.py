@@ -25,7 +25,7 @@ import numpy as np
 
 from fielddiag.channels import CORNERS, ChannelSpec, SessionMetadata, SignalSpec
 from fielddiag.session import write_session
-from fielddiag.vehicle.recording import SIGNAL_NAMES, VehicleRecording
+from fielddiag.vehicle.recording import SIGNAL_NAMES, VehicleRecording, full_vehicle_extra
 
 __all__ = ["CSV_COLUMNS", "csv_role_args", "write_vehicle_csv", "write_vehicle_session"]
 
@@ -44,9 +44,7 @@ def csv_role_args() -> list[str]:
 
 
 def _metadata(rec: VehicleRecording, vehicle_name: str) -> SessionMetadata:
-    extra: dict = {"vehicle": rec.geometry.to_dict(), "full_vehicle": True}
-    if rec.added_mass_at_m is not None:
-        extra["added_mass_at_m"] = [float(rec.added_mass_at_m[0]), float(rec.added_mass_at_m[1])]
+    extra = full_vehicle_extra(rec.geometry, rec.added_mass_at_m)
     sim = getattr(rec, "simulation_metadata", None)
     notes = ""
     if sim is not None:

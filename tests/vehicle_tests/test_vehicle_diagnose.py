@@ -93,17 +93,3 @@ def test_linear_car_has_no_finding():
     with pytest.raises(InvalidValueError, match="--added-mass-at"):
         diagnose_vehicle(before, replace(after, added_mass_at_m=None), ADDED_KG, None)
 
-
-def test_full_vehicle_demo_finds_the_worn_damper_and_the_strut_friction(tmp_path, capsys):
-    rc = main(["demo", "--full-vehicle", "--no-serve", "--duration", "45", "--out",
-               str(tmp_path / "demo")])
-    assert rc == 0
-    text = capsys.readouterr().out
-    assert "[fl] coulomb_friction" in text and "[rl] left_right_mismatch" in text
-    run = next((tmp_path / "demo").iterdir())
-    out = json.loads((run / "before.diagnose.json").read_text())
-    assert sorted(_kinds(out)) == [("coulomb_friction", "fl"), ("left_right_mismatch", "rl")]
-    assert out["cross_validation"][0]["nrmse_augmented"] < out["cross_validation"][0][
-        "nrmse_linear"]
-    ident = json.loads((run / "after.identify.json").read_text())
-    assert ident["mode"] == "full_vehicle" and "cross_validation" in ident
