@@ -125,8 +125,9 @@ def run_full_vehicle(args: argparse.Namespace, run_dir: Path) -> int:
         result_path(p, "diagnose").write_text(json.dumps(out, indent=1), encoding="utf-8")
     print("    " + format_vehicle_summary(out).replace("\n", "\n    "))
     print(f"    (the demo car's rear-left damper is {100 * (1 - WORN_RATIO):.0f} % weaker "
-          f"than the rear-right one, and its front-left strut has {FRICTION_N:g} N of dry "
-          "friction)")
+          f"than the rear-right one, its front-left strut has {FRICTION_N:g} N of dry "
+          f"friction, and its sprung mass is {car.sprung_mass_kg:.1f} kg: the linear "
+          "identification, which leaves the friction out, is biased by it)")
     print(f"    results beside each drive in {run_dir} (before.identify.json, "
           "before.diagnose.json...)")
     if args.no_serve:

@@ -917,13 +917,18 @@ def format_vehicle_summary(out: dict[str, Any]) -> str:
         for w in f.get("where", {}).get("time_windows_s", [])[:3]:
             lines.append(f"      acts most in {w['session']} {w['start_s']:.0f}-"
                          f"{w['end_s']:.0f} s (residual -{100 * w['residual_reduction']:.0f} %)")
-    m = out["linear_model"]
-    lines.append("  body: mass {:.1f} +- {:.2g} kg, CoG {:.3f} m behind the front axle, {:.3f} m "
-                 "left; pitch inertia {:.0f} kg m^2, roll inertia {:.0f} kg m^2".format(
-                     m["sprung_mass_kg"]["value"], m["sprung_mass_kg"]["std"],
+    m, lin = out["augmented_model"], out["linear_model"]
+    fitted = "fitted with the findings" if out["findings"] else "the linear model"
+    lines.append("  body, {}: mass {:.1f} +- {:.2g} kg, CoG {:.3f} m behind the front axle, "
+                 "{:.3f} m left; pitch inertia {:.0f} kg m^2, roll inertia {:.0f} kg m^2".format(
+                     fitted, m["sprung_mass_kg"]["value"], m["sprung_mass_kg"]["std"],
                      m["cog_behind_front_axle_m"]["value"], m["cog_left_of_centre_m"]["value"],
                      m["pitch_inertia_kgm2"]["value"], m["roll_inertia_kgm2"]["value"]))
-    for c, d in out["augmented_model"]["corners"].items():
+    if out["findings"]:
+        lines.append("      (the linear model alone, biased by what it leaves out: mass "
+                     "{:.1f} +- {:.2g} kg)".format(lin["sprung_mass_kg"]["value"],
+                                                   lin["sprung_mass_kg"]["std"]))
+    for c, d in m["corners"].items():
         parts = [f"{k} {v['value']:.4g} +- {v['std']:.2g}" for k, v in d.items()]
         lines.append(f"  {c}: " + ", ".join(parts))
     for cv in out.get("cross_validation", []):
