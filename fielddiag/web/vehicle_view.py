@@ -216,3 +216,14 @@ def render_vehicle_diagnosis(result: Mapping[str, Any]) -> None:
                              y_name="mean body acceleration [m/s²]",
                              title=f"Held-out data: {tr.get('session', '')}", zoom=True)
                   ).classes("w-full h-72 fd-vehicle-fit-chart").mark("vehicle-fit-chart")
+        # the traces overlap where the fit is good: what each model leaves shows the gain
+        rec = tr["recorded"]
+        left = [{"name": name, "x": tr["time_s"], "y": [r - m for r, m in zip(rec, tr[key],
+                                                                             strict=False)]}
+                for name, key in (("left by the linear model", "simulated_linear"),
+                                  ("left with the findings", "simulated_augmented"))]
+        ui.echart(xy_options(left, x_name="time [s]", y_name="recorded - model [m/s²]",
+                             title=f"What each model leaves: {tr.get('session', '')}",
+                             zoom=True)
+                  ).classes("w-full h-56 fd-vehicle-residual-chart").mark(
+            "vehicle-residual-chart")

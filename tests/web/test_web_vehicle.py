@@ -17,6 +17,16 @@ from fielddiag.vehicle import random_vehicle, simulate_vehicle
 from fielddiag.vehicle.diagnose import diagnose_vehicle
 from fielddiag.vehicle.writer import write_vehicle_session
 
+RESIDUAL_RMS_JS = """
+const el = document.querySelector(arguments[0]);
+if (!el) return null;
+const comp = getElement(el.id.slice(1));
+if (!comp || !comp.chart) return null;
+const o = comp.chart.getOption();
+if (!o || !o.series || !o.series.length || !(o.series[0].data || []).length) return null;
+return o.series.map(s => [s.name, Math.sqrt(s.data.reduce((a, p) => a + p[1] * p[1], 0)
+                                            / s.data.length)]);"""
+
 WHEELS_JS = """return Array.from(document.querySelectorAll('.fd-wheel')).map(
     el => [el.getAttribute('data-corner'), el.getAttribute('data-status'),
            el.getAttribute('fill')]);"""
@@ -70,6 +80,17 @@ def test_full_vehicle_diagnosis_page(browser, vehicle_root: Path) -> None:
                                 what="fit chart")
             assert [n for n, _, _ in series] == ["recorded", "linear model", "with the findings"]
             assert all(k > 100 for _, k, _ in series)
+            # what each model leaves of the held-out data: the findings leave less
+            rms = wait_until(lambda: d.execute_script(RESIDUAL_RMS_JS,
+                                                      ".fd-vehicle-residual-chart"),
+                             what="residual chart")
+            assert [n for n, _ in rms] == ["left by the linear model", "left with the findings"]
+            out = json.loads(result_path(vehicle_root / "car" / "before.h5",
+                                         "diagnose").read_text())
+            ratio = out["augmented"]["nrmse_validation"] / out["baseline"]["nrmse_validation"]
+            assert ratio < 0.7  # friction and a worn damper: the findings fit much better
+            # the chart shows the first drive's held-out part: its rms ratio is the drives'
+            assert rms[1][1] / rms[0][1] == pytest.approx(ratio, rel=0.5)
             shot(d, "20-full-vehicle-diagnosis")
             assert not js_errors(d)
     finally:
