@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -53,6 +53,8 @@ from fielddiag.vehicle.regression import (
     PARAM_NAMES,
     DriveRegressors,
     WlsResult,
+    equation_error_transfer,
+    equation_rows,
     noise_normal_equations,
     regressors,
     weighted_least_squares,
@@ -125,6 +127,10 @@ class VehicleIdentifyConfig:
     noise_compensation: bool = True
     refine: bool = False
     refine_gain: float = 0.10
+    noise_weighting: bool = True
+    hub_noise: str = "spectrum"
+    hub_noise_iterations: int = 4
+    hub_noise_bands: int = 6
 
 
 def _bp(x: np.ndarray, sos: np.ndarray, times: int = 1) -> np.ndarray:
@@ -133,7 +139,8 @@ def _bp(x: np.ndarray, sos: np.ndarray, times: int = 1) -> np.ndarray:
     return x
 
 
-def integrate_twice(acc: np.ndarray, sample_rate_hz: float, low_hz: float
+def integrate_twice(acc: np.ndarray, sample_rate_hz: float, low_hz: float,
+                    weight: Callable[[np.ndarray], np.ndarray] | None = None
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Acceleration, velocity and displacement by exact integration in the frequency domain.
 
@@ -151,6 +158,9 @@ def integrate_twice(acc: np.ndarray, sample_rate_hz: float, low_hz: float
     sample_rate_hz : float
     low_hz : float
         Edge of the high-pass [Hz].
+    weight : callable or None
+        A real zero-phase gain ``weight(f_hz)`` applied to all three alike (the frequency
+        weighting of the least squares, :func:`noise_weighting`).
 
     Returns
     -------
@@ -162,6 +172,8 @@ def integrate_twice(acc: np.ndarray, sample_rate_hz: float, low_hz: float
     f = sp_fft.rfftfreq(n, 1.0 / sample_rate_hz)
     u = np.clip((f - 0.5 * low_hz) / (0.5 * low_hz), 0.0, 1.0)
     spec = spec * (0.5 - 0.5 * np.cos(np.pi * u))
+    if weight is not None:
+        spec = spec * weight(f)
     jw = 2j * np.pi * f
     jw[0] = 1.0
     vel = spec / jw
@@ -169,14 +181,16 @@ def integrate_twice(acc: np.ndarray, sample_rate_hz: float, low_hz: float
             sp_fft.irfft(vel / jw, n, axis=-1))
 
 
-def prepare_drive(rec: VehicleRecording, cfg: VehicleIdentifyConfig = VehicleIdentifyConfig()
-                  ) -> DriveRegressors:
+def prepare_drive(rec: VehicleRecording, cfg: VehicleIdentifyConfig = VehicleIdentifyConfig(),
+                  weight: Callable[[np.ndarray], np.ndarray] | None = None) -> DriveRegressors:
     """Band-passed, integrated, decimated body and suspension motion of one drive.
 
     Parameters
     ----------
     rec : VehicleRecording
     cfg : VehicleIdentifyConfig
+    weight : callable or None
+        Frequency weighting applied to every signal (:func:`noise_weighting`).
 
     Returns
     -------
@@ -202,8 +216,8 @@ def prepare_drive(rec: VehicleRecording, cfg: VehicleIdentifyConfig = VehicleIde
     sos = signal.butter(cfg.filter_order, [lo, hi], "bandpass", fs=fs, output="sos")
     acc = np.vstack([rec.wheel_accel_mps2, rec.body_accel_mps2]).astype(float)
     car = np.vstack([rec.signal_or_zero("accel_long"), rec.signal_or_zero("accel_lat")])
-    a0, v0, x0 = integrate_twice(acc, fs, 0.5 * lo)
-    c0 = integrate_twice(car, fs, 0.5 * lo)[0]
+    a0, v0, x0 = integrate_twice(acc, fs, 0.5 * lo, weight)
+    c0 = integrate_twice(car, fs, 0.5 * lo, weight)[0]
     a3, v3, x1, car = (_bp(y, sos, cfg.passes) for y in (a0, v0, x0, c0))
     step = max(1, int(fs // cfg.analysis_rate_hz))
     trim = int(round((4.5 / lo if cfg.trim_s is None else cfg.trim_s) * fs))
@@ -420,13 +434,19 @@ def car_accel_noise_std_mps2(rec: VehicleRecording) -> tuple[float, float]:
     return out[0], out[1]
 
 
-def filter_response(rec: VehicleRecording, cfg: VehicleIdentifyConfig) -> np.ndarray:
+def filter_response(rec: VehicleRecording, cfg: VehicleIdentifyConfig,
+                    weight: Callable[[np.ndarray], np.ndarray] | None = None,
+                    band_edges_hz: Sequence[float] | None = None) -> np.ndarray:
     """Lag-0 cross-correlations of the acceleration, velocity and displacement filters of
-    :func:`prepare_drive` for unit white noise: ``R[f, g] = (1/n) sum_k H_f H_g*``.
+    :func:`prepare_drive` (with the same ``weight``) for unit white noise:
+    ``R[f, g] = (1/n) sum_k H_f H_g*``.
+
+    With ``band_edges_hz`` (increasing, from 0, may end with inf), the same for each band
+    ``[edge_j, edge_j+1)`` separately, (n_bands, 3, 3); they sum to the whole.
 
     Returns
     -------
-    ndarray (3, 3)
+    ndarray (3, 3) or (n_bands, 3, 3)
     """
     fs, n = float(rec.sample_rate_hz), rec.n
     lo, hi = cfg.band_hz
@@ -435,6 +455,8 @@ def filter_response(rec: VehicleRecording, cfg: VehicleIdentifyConfig) -> np.nda
     u = np.clip((f - 0.25 * lo) / (0.25 * lo), 0.0, 1.0)
     _, bresp = signal.sosfreqz(sos, worN=f, fs=fs)
     gain = (0.5 - 0.5 * np.cos(np.pi * u)) * np.abs(bresp) ** (2 * cfg.passes)
+    if weight is not None:
+        gain = gain * weight(f)
     jw = 2j * np.pi * f
     jw[0] = 1.0
     h = np.array([gain, gain / jw, gain / jw**2])
@@ -442,7 +464,14 @@ def filter_response(rec: VehicleRecording, cfg: VehicleIdentifyConfig) -> np.nda
     wts[0] = 1.0
     if n % 2 == 0:
         wts[-1] = 1.0
-    return np.real((h * wts) @ h.conj().T) / n
+    if band_edges_hz is None:
+        return np.real((h * wts) @ h.conj().T) / n
+    idx = np.searchsorted(np.asarray(band_edges_hz, float), f, side="right") - 1
+    out = np.zeros((len(band_edges_hz) - 1, 3, 3))
+    for j in range(out.shape[0]):
+        m = idx == j
+        out[j] = np.real((h[:, m] * wts[m]) @ h[:, m].conj().T) / n
+    return out
 
 
 def _nrmse(pred: np.ndarray, meas: np.ndarray) -> float:
@@ -453,6 +482,136 @@ def sim_nrmse(theta: np.ndarray, d: DriveRegressors) -> float:
     """NRMSE of the body accelerations simulated from the hub motion (after the start)."""
     skip = int(round(SETTLE_S * d.rate_hz))
     return _nrmse(simulate_body_accel(theta, d)[:, skip:], d.body_accel[:, skip:])
+
+
+def _noise(recs: Sequence[VehicleRecording], drives: Sequence[DriveRegressors],
+           cfg: VehicleIdentifyConfig, weights: Sequence[Callable | None],
+           hub_resp: Sequence[np.ndarray | None], body_sigma: Sequence[float],
+           car_sigma: Sequence[tuple[float, float]]) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    out: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    for k, (rec, d) in enumerate(zip(recs, drives)):
+        r = filter_response(rec, cfg, weights[k])
+        rh = body_sigma[k] ** 2 * r if hub_resp[k] is None else hub_resp[k]
+        resp = np.array([rh] * 4 + [body_sigma[k] ** 2 * r] * 4)
+        out.update(noise_normal_equations(d, [1.0] * 8, resp, 3 * k, car_sigma[k], r))
+    return out
+
+
+def hub_noise_spectrum(rec: VehicleRecording, d: DriveRegressors, theta: np.ndarray,
+                       cfg: VehicleIdentifyConfig,
+                       weight: Callable[[np.ndarray], np.ndarray] | None,
+                       body_sigma_mps2: float, car_sigma_mps2: tuple[float, float],
+                       band_edges_hz: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
+    """What the hub channels carry that is not motion, band by band, from the equation
+    errors.
+
+    The equation errors ``A theta - b`` of a model that fits hold only the sensors' noise
+    through known transfer functions: in each frequency band their energy is
+    ``P + s^2 Q`` per equation (``P`` from the body sensors' noise, known from their
+    redundancy, and the car accelerations' noise; ``Q`` per unit white hub noise, the same
+    on the four hubs). Whatever the hub channels carry that is not motion (electronics
+    noise, high-frequency acceleration aliased into the band by the DAQ) shows up here
+    and is solved for band by band (least squares over the three equations), so its
+    spectrum need not be white.
+
+    Returns
+    -------
+    s2 : ndarray (n_bands,)
+        Hub noise as the variance [m^2/s^4] of white noise at the recording's rate with the
+        same density in each band.
+    resp : ndarray (n_bands, 3, 3)
+        :func:`filter_response` of each band.
+    """
+    resp = filter_response(rec, cfg, weight, band_edges_hz)
+    a, b = equation_rows(d)
+    th = np.nan_to_num(np.asarray(theta, float))
+    res = np.einsum("enp,p->en", a, th) - b
+    n = res.shape[1]
+    spec = np.abs(sp_fft.rfft(res, axis=-1)) ** 2
+    f = sp_fft.rfftfreq(n, 1.0 / d.rate_hz)
+    wts = np.full(f.size, 2.0)
+    wts[0] = 1.0
+    if n % 2 == 0:
+        wts[-1] = 1.0
+    band = np.searchsorted(np.asarray(band_edges_hz, float), f, side="right") - 1
+    s2 = np.zeros(resp.shape[0])
+    for j in range(resp.shape[0]):
+        e_act = (spec[:, band == j] @ wts[band == j]) / n
+        p = noise_normal_equations(d, [0.0] * 4 + [body_sigma_mps2] * 4, resp[j], 0,
+                                   car_sigma_mps2)
+        q = noise_normal_equations(d, [1.0] * 4 + [0.0] * 4, resp[j], 0)
+        pbb = _noise_bb(d, [0.0] * 4 + [body_sigma_mps2] * 4, resp[j])
+        e_p = np.array([th @ p[e][0] @ th - 2 * th @ p[e][1] + pbb[e] for e in range(3)])
+        e_q = np.array([th @ q[e][0] @ th for e in range(3)])
+        wgt = 1.0 / np.maximum(e_act, 1e-300)  # relative misfit of each equation
+        s2[j] = max(float(np.sum(wgt**2 * e_q * (e_act - e_p)) / max(
+            float(np.sum(wgt**2 * e_q**2)), 1e-300)), 0.0)
+    return s2, resp
+
+
+def noise_weighting(d: DriveRegressors, theta: np.ndarray, sigma_mps2: Sequence[float],
+                    car_sigma_mps2: tuple[float, float], band_hz: tuple[float, float]
+                    ) -> Callable[[np.ndarray], np.ndarray]:
+    """Frequency weighting of the least squares: one over the square root of the noise's
+    share of the equation errors' spectrum (generalised least squares).
+
+    White accelerometer noise enters the suspension extensions integrated twice, so the
+    equation errors it makes grow as ``K / w^2`` towards low frequencies, where the
+    suspension hardly moves; weighted flat, the band's low end holds most of the noise
+    and little of the signal, and anything the noise compensation does not model there
+    (aliasing, non-white noise) biases the result. The weight is the same zero-phase gain
+    on every signal of the drive, so the equations still hold between them exactly.
+
+    Parameters
+    ----------
+    d : DriveRegressors
+    theta : ndarray
+        A first estimate (its scale does not matter).
+    sigma_mps2 : sequence of 8 float
+        Noise std of the hub and body channels [m/s^2].
+    car_sigma_mps2 : (float, float)
+        Noise std of the longitudinal and lateral car accelerations [m/s^2].
+    band_hz : (float, float)
+        The analysis band (the weight's maximum there is 1).
+
+    Returns
+    -------
+    callable
+        ``weight(f_hz) -> gain`` (0 at 0 Hz).
+    """
+    c = equation_error_transfer(d, theta)  # (3, 8, 3)
+    s2 = np.asarray(sigma_mps2, float) ** 2
+    th = np.nan_to_num(np.asarray(theta, float))
+    flat = np.array([0.0, (th[16] * car_sigma_mps2[0]) ** 2, (th[17] * car_sigma_mps2[1]) ** 2])
+
+    def psd(f: np.ndarray) -> np.ndarray:
+        jw = 2j * np.pi * f
+        t = c[..., 0, None] + c[..., 1, None] / jw + c[..., 2, None] / jw**2
+        return np.einsum("c,ecf->ef", s2, np.abs(t) ** 2) + flat[:, None]
+
+    fb = np.linspace(band_hz[0], band_hz[1], 256)
+    norm = np.maximum(psd(fb).mean(axis=1), 1e-300)
+    wmax = float(np.max(1.0 / np.sqrt((psd(fb) / norm[:, None]).sum(axis=0))))
+
+    def weight(f: np.ndarray) -> np.ndarray:
+        f = np.asarray(f, float)
+        out = np.zeros_like(f)
+        pos = f > 0
+        out[pos] = 1.0 / np.sqrt((psd(f[pos]) / norm[:, None]).sum(axis=0)) / wmax
+        return out
+
+    return weight
+
+
+def _noise_bb(d: DriveRegressors, sigma_mps2: Sequence[float], response: np.ndarray
+              ) -> np.ndarray:
+    from fielddiag.vehicle.regression import _noise_basis
+    _, bb = _noise_basis(d)
+    s = np.zeros((24, 24))
+    for ch in range(8):
+        s[3 * ch: 3 * ch + 3, 3 * ch: 3 * ch + 3] = float(sigma_mps2[ch]) ** 2 * response
+    return np.array([d.n * bb[e] @ s @ bb[e] for e in range(3)])
+
 
 
 def identify_vehicle(
@@ -524,15 +683,45 @@ def identify_vehicle(
         raise InsufficientDataError("the drives do not move the body or the suspensions; drive "
                                     "over a rough road")
     noise: dict[int, tuple[np.ndarray, np.ndarray]] | None = None
-    if config.noise_compensation:
-        noise = {}
-        for k, (rec, d) in enumerate(((before, d0), (after, d1))):
-            sigma = body_noise_std_mps2(rec)  # the hubs' sensors taken as equally noisy
-            noise.update(noise_normal_equations(d, [sigma] * 8,
-                                                filter_response(rec, config), 3 * k,
-                                                car_accel_noise_std_mps2(rec)))
+    recs = (before, after)
     block = max(1, int(round(config.block_s * d0.rate_hz)))
-    w = weighted_least_squares(a, b, group, tidx, fitted, block, noise, config.jackknife_bias)
+    fit_drives = drives
+    if config.noise_compensation:
+        body_sigma = [body_noise_std_mps2(rec) for rec in recs]
+        car_sigma = [car_accel_noise_std_mps2(rec) for rec in recs]
+        hub_resp: list[np.ndarray | None] = [None, None]  # first taken as noisy as the body's
+        hub_sigma = list(body_sigma)
+        weights: list[Callable[[np.ndarray], np.ndarray] | None] = [None, None]
+        noise = _noise(recs, drives, config, weights, hub_resp, body_sigma, car_sigma)
+        w = weighted_least_squares(a, b, group, tidx, fitted, block, noise)
+        if config.noise_weighting:
+            weights = [noise_weighting(d, w.theta, [hs] * 4 + [bs] * 4, cs, config.band_hz)
+                       for d, hs, bs, cs in zip(drives, hub_sigma, body_sigma, car_sigma)]
+            fit_drives = [prepare_drive(rec, config, wt) for rec, wt in zip(recs, weights)]
+            for dw, d in zip(fit_drives, drives):
+                dw.added_mass_kg, dw.added_mass_at_m = d.added_mass_kg, d.added_mass_at_m
+            a, b, group, tidx = regressors(fit_drives)
+            noise = _noise(recs, fit_drives, config, weights, hub_resp, body_sigma, car_sigma)
+            w = weighted_least_squares(a, b, group, tidx, fitted, block, noise)
+        if config.hub_noise != "body":
+            lo, hi = config.band_hz
+            nb = config.hub_noise_bands
+            edges = np.concatenate([[0.0], lo * (hi / lo) ** (np.arange(1, nb) / nb), [np.inf]])
+            if nb == 1:
+                edges = np.array([0.0, np.inf])
+            for _ in range(config.hub_noise_iterations):
+                spectra = [hub_noise_spectrum(rec, d, w.theta, config, wt, bs, cs, edges)
+                           for rec, d, wt, bs, cs in zip(recs, fit_drives, weights,
+                                                        body_sigma, car_sigma)]
+                hub_resp = [np.einsum("j,jfg->fg", s2, r) for s2, r in spectra]
+                hub_sigma = [float(np.sqrt(np.mean(s2))) for s2, _ in spectra]
+                noise = _noise(recs, fit_drives, config, weights, hub_resp, body_sigma,
+                               car_sigma)
+                w = weighted_least_squares(a, b, group, tidx, fitted, block, noise)
+            w.hub_s2 = [s2 for s2, _ in spectra]
+        w.hub_sigma = hub_sigma
+    else:
+        w = weighted_least_squares(a, b, group, tidx, fitted, block, None)
     if noise:
         # the noise compensation may itself be uncertain (it takes the hub sensors as noisy
         # as the body's; in tests with known truth it removed 97-100 % of a 10 % bias, so

@@ -34,8 +34,9 @@ import numpy as np
 
 from fielddiag.channels import CORNERS
 
-__all__ = ["PARAM_NAMES", "DriveRegressors", "WlsResult", "equation_rows", "predict_body_accel",
-           "regressors", "weighted_least_squares"]
+__all__ = ["PARAM_NAMES", "DriveRegressors", "WlsResult", "equation_error_transfer", "equation_rows",
+           "noise_normal_equations", "predict_body_accel", "regressors",
+           "weighted_least_squares"]
 
 #: The parameters of the linear-in-parameters model, in order.
 PARAM_NAMES = ("mass_kg", "first_moment_x_kgm", "first_moment_y_kgm", "pitch_inertia_origin_kgm2",
@@ -301,9 +302,44 @@ def weighted_least_squares(a: np.ndarray, b: np.ndarray, group: np.ndarray, tidx
     return WlsResult(theta, cov, np.asarray(fitted, bool), sigma, int(nb))
 
 
+def _noise_basis(d: DriveRegressors) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`equation_rows` of the 24 unit inputs (8 channels x acceleration, velocity,
+    displacement filter): ``A`` (3, 24, N_PARAMS) and ``b`` (3, 24), linear maps of each
+    channel's filtered noise into the regressors and the right-hand side."""
+    nb = 24
+    unit = np.eye(nb).reshape(8, 3, nb)  # [channel, filter, basis]
+    wheel, body = unit[:4], unit[4:]
+    pinv = np.linalg.pinv(d.sensor_matrix)
+    cm = np.column_stack([np.ones(4), d.corner_x, d.corner_y])
+    basis = DriveRegressors(
+        qdd=pinv @ body[:, 0], r=cm @ pinv @ body[:, 2] - wheel[:, 2],
+        rd=cm @ pinv @ body[:, 1] - wheel[:, 1], a_long=np.zeros(nb), a_lat=np.zeros(nb),
+        body_accel=body[:, 0], corner_x=d.corner_x, corner_y=d.corner_y,
+        sensor_matrix=d.sensor_matrix, added_mass_kg=d.added_mass_kg,
+        added_mass_at_m=d.added_mass_at_m, rate_hz=d.rate_hz)
+    return equation_rows(basis)
+
+
+def equation_error_transfer(d: DriveRegressors, theta: np.ndarray) -> np.ndarray:
+    """How each accelerometer's noise enters each body equation's error ``A theta - b``.
+
+    Returns
+    -------
+    ndarray (3, 8, 3)
+        ``c[e, ch, k]``: equation ``e``'s error per unit of channel ``ch``'s noise through
+        the acceleration, velocity and displacement filter ``k``; at angular frequency
+        ``w`` the error's transfer from that channel's acceleration noise is
+        ``c[e, ch, 0] + c[e, ch, 1] / (j w) + c[e, ch, 2] / (j w)^2``.
+    """
+    a, b = _noise_basis(d)
+    th = np.nan_to_num(np.asarray(theta, float))
+    return (a @ th - b).reshape(3, 8, 3)
+
+
 def noise_normal_equations(d: DriveRegressors, sigma_mps2: Sequence[float],
                            response: np.ndarray, first_group: int,
-                           car_sigma_mps2: tuple[float, float] = (0.0, 0.0)
+                           car_sigma_mps2: tuple[float, float] = (0.0, 0.0),
+                           car_response: np.ndarray | None = None
                            ) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     """Expected share of white accelerometer noise in one drive's normal equations.
 
@@ -318,14 +354,18 @@ def noise_normal_equations(d: DriveRegressors, sigma_mps2: Sequence[float],
         The drive (geometry, added mass, number of samples).
     sigma_mps2 : sequence of 8 float
         Noise std of the hub (fl, fr, rl, rr) and body (fl, fr, rl, rr) channels [m/s^2].
-    response : ndarray (3, 3)
+    response : ndarray (3, 3) or (8, 3, 3)
         ``R[f, g] = sum_k h_f[k] h_g[k]`` of the acceleration, velocity and displacement
-        filters for unit white noise.
+        filters for unit white noise, for all channels or per channel (then it carries
+        the channel's noise spectrum: give ``sigma_mps2`` 1).
     first_group : int
         Group id of this drive's heave equation (``3 * drive``).
     car_sigma_mps2 : (float, float)
         Noise std of the car's longitudinal and lateral acceleration signals [m/s^2]
         (they are regressors of the pitch and roll moment arms).
+    car_response : ndarray (3, 3) or None
+        The filters' ``R`` for the car signals (white noise); default ``response`` (needed
+        when ``response`` is per channel).
 
     Returns
     -------
@@ -333,24 +373,21 @@ def noise_normal_equations(d: DriveRegressors, sigma_mps2: Sequence[float],
         Sums over the drive's samples, unweighted.
     """
     nb = 24  # 8 channels x 3 filters
-    unit = np.eye(nb).reshape(8, 3, nb)  # [channel, filter, basis]
-    wheel, body = unit[:4], unit[4:]
-    pinv = np.linalg.pinv(d.sensor_matrix)
-    cm = np.column_stack([np.ones(4), d.corner_x, d.corner_y])
-    basis = DriveRegressors(
-        qdd=pinv @ body[:, 0], r=cm @ pinv @ body[:, 2] - wheel[:, 2],
-        rd=cm @ pinv @ body[:, 1] - wheel[:, 1], a_long=np.zeros(nb), a_lat=np.zeros(nb),
-        body_accel=body[:, 0], corner_x=d.corner_x, corner_y=d.corner_y,
-        sensor_matrix=d.sensor_matrix, added_mass_kg=d.added_mass_kg,
-        added_mass_at_m=d.added_mass_at_m, rate_hz=d.rate_hz)
-    a, b = equation_rows(basis)  # (3, 24, P), (3, 24)
+    a, b = _noise_basis(d)  # (3, 24, P), (3, 24)
+    resp = np.asarray(response, float)
+    resp = np.broadcast_to(resp, (8, 3, 3)) if resp.ndim == 2 else resp
     s = np.zeros((nb, nb))
     for ch in range(8):
         idx = slice(3 * ch, 3 * ch + 3)
-        s[idx, idx] = float(sigma_mps2[ch]) ** 2 * response
+        s[idx, idx] = float(sigma_mps2[ch]) ** 2 * resp[ch]
     out = {}
     for e in range(3):
         out[first_group + e] = (d.n * a[e].T @ s @ a[e], d.n * a[e].T @ s @ b[e])
-    out[first_group + 1][0][16, 16] += d.n * car_sigma_mps2[0] ** 2 * response[0, 0]
-    out[first_group + 2][0][17, 17] += d.n * car_sigma_mps2[1] ** 2 * response[0, 0]
+    if car_response is None:
+        if np.ndim(response) == 3 and any(car_sigma_mps2):
+            raise ValueError("per-channel responses need the car signals' car_response")
+        car_response = resp[0]
+    r_car = float(np.asarray(car_response)[0, 0])
+    out[first_group + 1][0][16, 16] += d.n * car_sigma_mps2[0] ** 2 * r_car
+    out[first_group + 2][0][17, 17] += d.n * car_sigma_mps2[1] ** 2 * r_car
     return out
