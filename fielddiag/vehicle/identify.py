@@ -52,12 +52,14 @@ from fielddiag.vehicle.regression import (
     N_PARAMS,
     PARAM_NAMES,
     DriveRegressors,
+    DriveNoise,
     WlsResult,
+    band_split,
+    block_grams,
+    compensated_least_squares,
     equation_error_transfer,
-    equation_rows,
-    noise_normal_equations,
+    noise_gram,
     regressors,
-    weighted_least_squares,
 )
 
 __all__ = ["VehicleIdentifyConfig", "VehicleIdentification", "identify_vehicle",
@@ -131,6 +133,7 @@ class VehicleIdentifyConfig:
     hub_noise: str = "spectrum"
     hub_noise_iterations: int = 4
     hub_noise_bands: int = 6
+    hub_noise_correlation: tuple[str, ...] = ("left_right",)
 
 
 def _bp(x: np.ndarray, sos: np.ndarray, times: int = 1) -> np.ndarray:
@@ -484,71 +487,6 @@ def sim_nrmse(theta: np.ndarray, d: DriveRegressors) -> float:
     return _nrmse(simulate_body_accel(theta, d)[:, skip:], d.body_accel[:, skip:])
 
 
-def _noise(recs: Sequence[VehicleRecording], drives: Sequence[DriveRegressors],
-           cfg: VehicleIdentifyConfig, weights: Sequence[Callable | None],
-           hub_resp: Sequence[np.ndarray | None], body_sigma: Sequence[float],
-           car_sigma: Sequence[tuple[float, float]]) -> dict[int, tuple[np.ndarray, np.ndarray]]:
-    out: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-    for k, (rec, d) in enumerate(zip(recs, drives)):
-        r = filter_response(rec, cfg, weights[k])
-        rh = body_sigma[k] ** 2 * r if hub_resp[k] is None else hub_resp[k]
-        resp = np.array([rh] * 4 + [body_sigma[k] ** 2 * r] * 4)
-        out.update(noise_normal_equations(d, [1.0] * 8, resp, 3 * k, car_sigma[k], r))
-    return out
-
-
-def hub_noise_spectrum(rec: VehicleRecording, d: DriveRegressors, theta: np.ndarray,
-                       cfg: VehicleIdentifyConfig,
-                       weight: Callable[[np.ndarray], np.ndarray] | None,
-                       body_sigma_mps2: float, car_sigma_mps2: tuple[float, float],
-                       band_edges_hz: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
-    """What the hub channels carry that is not motion, band by band, from the equation
-    errors.
-
-    The equation errors ``A theta - b`` of a model that fits hold only the sensors' noise
-    through known transfer functions: in each frequency band their energy is
-    ``P + s^2 Q`` per equation (``P`` from the body sensors' noise, known from their
-    redundancy, and the car accelerations' noise; ``Q`` per unit white hub noise, the same
-    on the four hubs). Whatever the hub channels carry that is not motion (electronics
-    noise, high-frequency acceleration aliased into the band by the DAQ) shows up here
-    and is solved for band by band (least squares over the three equations), so its
-    spectrum need not be white.
-
-    Returns
-    -------
-    s2 : ndarray (n_bands,)
-        Hub noise as the variance [m^2/s^4] of white noise at the recording's rate with the
-        same density in each band.
-    resp : ndarray (n_bands, 3, 3)
-        :func:`filter_response` of each band.
-    """
-    resp = filter_response(rec, cfg, weight, band_edges_hz)
-    a, b = equation_rows(d)
-    th = np.nan_to_num(np.asarray(theta, float))
-    res = np.einsum("enp,p->en", a, th) - b
-    n = res.shape[1]
-    spec = np.abs(sp_fft.rfft(res, axis=-1)) ** 2
-    f = sp_fft.rfftfreq(n, 1.0 / d.rate_hz)
-    wts = np.full(f.size, 2.0)
-    wts[0] = 1.0
-    if n % 2 == 0:
-        wts[-1] = 1.0
-    band = np.searchsorted(np.asarray(band_edges_hz, float), f, side="right") - 1
-    s2 = np.zeros(resp.shape[0])
-    for j in range(resp.shape[0]):
-        e_act = (spec[:, band == j] @ wts[band == j]) / n
-        p = noise_normal_equations(d, [0.0] * 4 + [body_sigma_mps2] * 4, resp[j], 0,
-                                   car_sigma_mps2)
-        q = noise_normal_equations(d, [1.0] * 4 + [0.0] * 4, resp[j], 0)
-        pbb = _noise_bb(d, [0.0] * 4 + [body_sigma_mps2] * 4, resp[j])
-        e_p = np.array([th @ p[e][0] @ th - 2 * th @ p[e][1] + pbb[e] for e in range(3)])
-        e_q = np.array([th @ q[e][0] @ th for e in range(3)])
-        wgt = 1.0 / np.maximum(e_act, 1e-300)  # relative misfit of each equation
-        s2[j] = max(float(np.sum(wgt**2 * e_q * (e_act - e_p)) / max(
-            float(np.sum(wgt**2 * e_q**2)), 1e-300)), 0.0)
-    return s2, resp
-
-
 def noise_weighting(d: DriveRegressors, theta: np.ndarray, sigma_mps2: Sequence[float],
                     car_sigma_mps2: tuple[float, float], band_hz: tuple[float, float]
                     ) -> Callable[[np.ndarray], np.ndarray]:
@@ -603,15 +541,79 @@ def noise_weighting(d: DriveRegressors, theta: np.ndarray, sigma_mps2: Sequence[
     return weight
 
 
-def _noise_bb(d: DriveRegressors, sigma_mps2: Sequence[float], response: np.ndarray
-              ) -> np.ndarray:
-    from fielddiag.vehicle.regression import _noise_basis
-    _, bb = _noise_basis(d)
-    s = np.zeros((24, 24))
-    for ch in range(8):
-        s[3 * ch: 3 * ch + 3, 3 * ch: 3 * ch + 3] = float(sigma_mps2[ch]) ** 2 * response
-    return np.array([d.n * bb[e] @ s @ bb[e] for e in range(3)])
+def band_edges_hz(band_hz: tuple[float, float], n_bands: int) -> np.ndarray:
+    """Edges of the hub-noise bands: 0, ``n_bands - 1`` geometric steps between the band's
+    edges, inf (the first and last take the band-pass skirts)."""
+    lo, hi = band_hz
+    inner = lo * (hi / lo) ** (np.arange(1, n_bands) / n_bands)
+    return np.concatenate([[0.0], inner, [np.inf]])
 
+
+def drive_noise(rec: VehicleRecording, d: DriveRegressors, cfg: VehicleIdentifyConfig,
+                weight: Callable[[np.ndarray], np.ndarray] | None, edges_hz: np.ndarray,
+                body_sigma_mps2: float, car_sigma_mps2: tuple[float, float]) -> DriveNoise:
+    """The noise's expected share in the drive's Gram matrices, per band: body sensors and
+    car signals known, hub sensors per unit white noise (starting as noisy as the body's).
+    """
+    resp = filter_response(rec, cfg, weight, edges_hz)
+    body = [0.0] * 4 + [body_sigma_mps2] * 4
+    known = np.stack([noise_gram(d, body, r, car_sigma_mps2, r) for r in resp], axis=1)
+    units = [np.diag([1.0] * 4 + [0.0] * 4)]
+    pairs = {"left_right": ((0, 1), (2, 3)), "front_rear": ((0, 2), (1, 3))}
+    for name in cfg.hub_noise_correlation:
+        u = np.zeros((8, 8))
+        for i, k in pairs[name]:
+            u[i, k] = u[k, i] = 1.0
+        units.append(u)
+    hub = np.stack([np.stack([noise_gram(d, [], r, channel_cov=u) for r in resp], axis=1)
+                    for u in units])
+    s2 = np.zeros((len(units), len(resp)))
+    s2[0] = body_sigma_mps2**2
+    return DriveNoise(known, hub, s2)
+
+
+def _compensated_fit(recs: Sequence[VehicleRecording], drives: Sequence[DriveRegressors],
+                     fitted: np.ndarray, block: int, cfg: VehicleIdentifyConfig
+                     ) -> tuple[WlsResult, WlsResult, dict[str, Any]]:
+    """Steps 3-4 of the method with the noise compensation: first fit (flat in frequency,
+    the hubs as noisy as the body), frequency weighting from it, the weighted fit with the
+    hub noise spectrum estimated; and the weighted fit without compensation."""
+    body_sigma = [body_noise_std_mps2(rec) for rec in recs]
+    car_sigma = [car_accel_noise_std_mps2(rec) for rec in recs]
+    edges = band_edges_hz(cfg.band_hz, cfg.hub_noise_bands)
+
+    def setup(ds: Sequence[DriveRegressors], wts: Sequence[Callable | None]):
+        noise = [drive_noise(rec, d, cfg, wt, edges, bs, cs)
+                 for rec, d, wt, bs, cs in zip(recs, ds, wts, body_sigma, car_sigma)]
+        grams = [block_grams(d, block) for d in ds]
+        return noise, [g for g, _ in grams], [n for _, n in grams]
+
+    weights: list[Callable[[np.ndarray], np.ndarray] | None] = [None] * len(recs)
+    noise, grams, samples = setup(drives, weights)
+    fit_drives = list(drives)
+    if cfg.noise_weighting:
+        first = compensated_least_squares(grams, samples, fitted, noise, jackknife=False)
+        weights = [noise_weighting(d, first.theta, [bs] * 8, cs, cfg.band_hz)
+                   for d, bs, cs in zip(drives, body_sigma, car_sigma)]
+        fit_drives = []
+        for rec, d, wt in zip(recs, drives, weights):
+            dw = prepare_drive(rec, cfg, wt)
+            dw.added_mass_kg, dw.added_mass_at_m = d.added_mass_kg, d.added_mass_at_m
+            fit_drives.append(dw)
+        noise, grams, samples = setup(fit_drives, weights)
+    band_grams = None
+    iterations = 0
+    if cfg.hub_noise == "spectrum":
+        iterations = cfg.hub_noise_iterations
+        band_grams = [np.stack([block_grams(part, block)[0] for part in band_split(d, edges)],
+                               axis=2) for d in fit_drives]
+    w = compensated_least_squares(grams, samples, fitted, noise, band_grams, iterations,
+                                  bias_correction=cfg.jackknife_bias)
+    raw = compensated_least_squares(grams, samples, fitted, None, jackknife=False)
+    info = {"body_noise_std_mps2": body_sigma, "car_accel_noise_std_mps2": car_sigma,
+            "band_edges_hz": edges, "weights": weights,
+            "hub_noise_std_mps2": np.sqrt(w.hub_noise_s2[:, 0])}
+    return w, raw, info
 
 
 def identify_vehicle(
@@ -672,7 +674,7 @@ def identify_vehicle(
     d1 = prepare_drive(after, config)
     d1.added_mass_kg, d1.added_mass_at_m = added_mass_kg, at
     drives = [d0, d1]
-    a, b, group, tidx = regressors(drives)
+    a, _, _, _ = regressors(drives)
     fitted = np.ones(N_PARAMS, bool)
     # moment arms: only where the car accelerated (else the column is noise or zero)
     for col, sig in ((16, "a_long"), (17, "a_lat")):
@@ -682,57 +684,21 @@ def identify_vehicle(
     if np.any(col_norm[fitted] == 0):
         raise InsufficientDataError("the drives do not move the body or the suspensions; drive "
                                     "over a rough road")
-    noise: dict[int, tuple[np.ndarray, np.ndarray]] | None = None
     recs = (before, after)
     block = max(1, int(round(config.block_s * d0.rate_hz)))
-    fit_drives = drives
     if config.noise_compensation:
-        body_sigma = [body_noise_std_mps2(rec) for rec in recs]
-        car_sigma = [car_accel_noise_std_mps2(rec) for rec in recs]
-        hub_resp: list[np.ndarray | None] = [None, None]  # first taken as noisy as the body's
-        hub_sigma = list(body_sigma)
-        weights: list[Callable[[np.ndarray], np.ndarray] | None] = [None, None]
-        noise = _noise(recs, drives, config, weights, hub_resp, body_sigma, car_sigma)
-        w = weighted_least_squares(a, b, group, tidx, fitted, block, noise)
-        if config.noise_weighting:
-            weights = [noise_weighting(d, w.theta, [hs] * 4 + [bs] * 4, cs, config.band_hz)
-                       for d, hs, bs, cs in zip(drives, hub_sigma, body_sigma, car_sigma)]
-            fit_drives = [prepare_drive(rec, config, wt) for rec, wt in zip(recs, weights)]
-            for dw, d in zip(fit_drives, drives):
-                dw.added_mass_kg, dw.added_mass_at_m = d.added_mass_kg, d.added_mass_at_m
-            a, b, group, tidx = regressors(fit_drives)
-            noise = _noise(recs, fit_drives, config, weights, hub_resp, body_sigma, car_sigma)
-            w = weighted_least_squares(a, b, group, tidx, fitted, block, noise)
-        if config.hub_noise != "body":
-            lo, hi = config.band_hz
-            nb = config.hub_noise_bands
-            edges = np.concatenate([[0.0], lo * (hi / lo) ** (np.arange(1, nb) / nb), [np.inf]])
-            if nb == 1:
-                edges = np.array([0.0, np.inf])
-            for _ in range(config.hub_noise_iterations):
-                spectra = [hub_noise_spectrum(rec, d, w.theta, config, wt, bs, cs, edges)
-                           for rec, d, wt, bs, cs in zip(recs, fit_drives, weights,
-                                                        body_sigma, car_sigma)]
-                hub_resp = [np.einsum("j,jfg->fg", s2, r) for s2, r in spectra]
-                hub_sigma = [float(np.sqrt(np.mean(s2))) for s2, _ in spectra]
-                noise = _noise(recs, fit_drives, config, weights, hub_resp, body_sigma,
-                               car_sigma)
-                w = weighted_least_squares(a, b, group, tidx, fitted, block, noise)
-            w.hub_s2 = [s2 for s2, _ in spectra]
-        w.hub_sigma = hub_sigma
-    else:
-        w = weighted_least_squares(a, b, group, tidx, fitted, block, None)
-    if noise:
-        # the noise compensation may itself be uncertain (it takes the hub sensors as noisy
-        # as the body's; in tests with known truth it removed 97-100 % of a 10 % bias, so
-        # the default doubt is 0): carry compensation_doubt x the scale change it made as a
-        # fully correlated scale uncertainty, plus a floor for the processing (bias without
-        # noise: 0.04-0.13 %, measured)
-        raw = weighted_least_squares(a, b, group, tidx, fitted, block, None)
+        w, raw, noise_info = _compensated_fit(recs, drives, fitted, block, config)
+        # a floor for the processing (bias without noise: 0.04-0.13 %, measured), and
+        # optionally compensation_doubt x the scale change the compensation made, as a
+        # fully correlated scale uncertainty
         shift = w.theta[0] / raw.theta[0] - 1.0
         w.scale_std = float(np.hypot(config.compensation_doubt * shift, config.scale_floor))
     else:
+        grams = [block_grams(d, block) for d in drives]
+        w = compensated_least_squares([g for g, _ in grams], [n for _, n in grams], fitted,
+                                      bias_correction=config.jackknife_bias)
         w.scale_std = float(config.scale_floor)
+        noise_info = {}
     th = np.nan_to_num(w.theta)
     w.cov = w.cov + w.scale_std**2 * np.outer(th, th)
     dvs = []
