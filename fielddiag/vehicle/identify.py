@@ -16,8 +16,18 @@ output-only accelerometer data):
    moments, inertias, corner stiffness and damping, anti-roll stiffness and the roll and
    pitch moment arms, are stacked over both drives; the known added mass at its known
    position is the only non-zero right-hand side and fixes the scale. Weighted least
-   squares with a time-block jackknife gives every parameter a standard
-   deviation, relative standard deviations and correlations.
+   squares, the accelerometers' noise bias compensated (errors in variables), with a
+   time-block jackknife that repeats the whole estimate gives every parameter a
+   standard deviation, relative standard deviations and correlations. The noise:
+   the body sensors' from their redundancy; the hub sensors' (which also carries the
+   wheel's high-frequency acceleration a DAQ with a gentle anti-alias filter folds into
+   the band) band by band from the equation errors, with a covariance common to the
+   left and right hub (:func:`~fielddiag.vehicle.regression.compensated_least_squares`);
+   the equations weighted in frequency by one over the noise's share of their errors
+   (:func:`noise_weighting`, generalised least squares: double integration makes the
+   noise grow as ``1 / f^2`` towards the band's low end, where the suspension hardly
+   moves). The estimate with another structure of the hub noise (left-right and
+   front-rear covariances) is carried as a systematic uncertainty.
 4. Derived quantities (centre of gravity, inertias about it) get their standard
    deviations by the delta method.
 5. Output-error refinement (:mod:`fielddiag.vehicle.output_error`): the body simulated
@@ -51,8 +61,8 @@ from fielddiag.vehicle.recording import VehicleRecording
 from fielddiag.vehicle.regression import (
     N_PARAMS,
     PARAM_NAMES,
-    DriveRegressors,
     DriveNoise,
+    DriveRegressors,
     WlsResult,
     band_split,
     block_grams,
@@ -100,12 +110,11 @@ class VehicleIdentifyConfig:
     noise_compensation : bool
         Remove the bias the accelerometer noise puts on least squares (errors in
         variables): the noise of the body sensors is measured from their redundancy
-        (:func:`body_noise_std_mps2`; the hub sensors are taken as equally noisy), that of
-        the car's acceleration signals above a quarter of the rate
-        (:func:`car_accel_noise_std_mps2`), its
-        expected share of the normal equations follows from the processing's transfer
-        functions (:func:`filter_response`,
-        :func:`~fielddiag.vehicle.regression.noise_normal_equations`) and is subtracted.
+        (:func:`body_noise_std_mps2`), that of the car's acceleration signals above a
+        quarter of the rate (:func:`car_accel_noise_std_mps2`), that of the hub sensors
+        (see ``hub_noise``); its expected share of the normal equations follows from the
+        processing's transfer functions (:func:`filter_response`,
+        :func:`~fielddiag.vehicle.regression.noise_gram`) and is subtracted.
     refine : bool
         Try the output-error refinement (:mod:`fielddiag.vehicle.output_error`) when there
         are validate drives, and keep it only if it predicts their body accelerations
@@ -114,6 +123,28 @@ class VehicleIdentifyConfig:
         simulated linear cars it was never kept (``fielddiag identify --refine``).
     refine_gain : float
         Relative NRMSE improvement the refinement must bring to be kept.
+    noise_weighting : bool
+        Weight the equations in frequency by one over the noise's share of their errors
+        (:func:`noise_weighting`) instead of flat over the band.
+    hub_noise : str
+        ``"spectrum"``: the hub sensors' noise estimated band by band from the equation
+        errors (it includes what aliasing folds into the band: on simulated 200 Hz drives
+        with a 4th-order anti-alias filter at 0.4 fs, as much as 0.02-0.06 m/s^2 of
+        white-equivalent noise, more than the sensors'); ``"body"``: taken as the body
+        sensors' (the method before issue 18's 200 Hz fix).
+    hub_noise_iterations : int
+        Rounds of the fixed point between the parameters and the hub noise.
+    hub_noise_bands : int
+        Bands of the hub noise spectrum (geometric between the band's edges).
+    hub_noise_correlation : tuple of str
+        Covariances of the hub noise estimated besides each hub's variance:
+        ``"left_right"`` (the two tracks of a road are alike; so is what they put into
+        the hubs), ``"front_rear"`` (three equations cannot fit both: with both, the
+        equations' cross products are used too, less stable).
+    structure_doubt : float
+        Times the difference between the estimate with ``hub_noise_correlation`` and
+        with both covariances (fitted to the cross products as well), added to the
+        covariance as a systematic uncertainty (0: off).
     """
 
     band_hz: tuple[float, float] = (0.5, 25.0)
@@ -134,6 +165,9 @@ class VehicleIdentifyConfig:
     hub_noise_iterations: int = 4
     hub_noise_bands: int = 6
     hub_noise_correlation: tuple[str, ...] = ("left_right",)
+    hub_noise_cross_products: bool = False
+    structure_alternative: tuple[tuple[str, ...], bool] = (("left_right", "front_rear"), True)
+    structure_doubt: float = 1.0
 
 
 def _bp(x: np.ndarray, sos: np.ndarray, times: int = 1) -> np.ndarray:
@@ -279,6 +313,14 @@ class VehicleIdentification:
     refinement : dict
         The output-error refinement: ``applied``, ``judged_on`` and the NRMSE of the
         least-squares and of the refined parameters it was judged by.
+    noise : dict
+        The noise the compensation used: ``body_noise_std_mps2`` and
+        ``car_accel_noise_std_mps2`` per drive, ``hub_noise_std_mps2`` (drives, bands;
+        white-equivalent at the recording's rate), ``hub_noise_correlation``,
+        ``band_edges_hz``, ``compensation_shift`` (relative change of the mass the
+        compensation made), ``structure_shift``.
+    warnings : list of str
+        What limits the result, in words (also in :meth:`summary`).
     """
 
     sprung_mass_kg: Estimate
@@ -294,6 +336,8 @@ class VehicleIdentification:
     fit_nrmse: dict[str, float] = field(default_factory=dict)
     method: str = ""
     refinement: dict[str, Any] = field(default_factory=dict)
+    noise: dict[str, Any] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         """The contract's JSON: each quantity ``{"value", "std"}`` in SI units."""
@@ -351,6 +395,14 @@ class VehicleIdentification:
         if strong:
             lines.append("  strongly correlated: " + ", ".join(
                 f"{a}/{b} {r:+.2f}" for a, b, r in strong[:6]))
+        if "hub_noise_std_mps2" in self.noise:
+            for k, label in enumerate(("before", "after")):
+                hub = np.asarray(self.noise["hub_noise_std_mps2"])[k]
+                lines.append(
+                    f"  sensor noise, {label}: body {self.noise['body_noise_std_mps2'][k]:.3g}"
+                    f" m/s^2, hubs {hub.min():.3g}-{hub.max():.3g} m/s^2 (white-equivalent, "
+                    "by band)")
+        lines.extend(f"  warning: {w}" for w in self.warnings)
         return "\n".join(lines)
 
 
@@ -551,22 +603,26 @@ def band_edges_hz(band_hz: tuple[float, float], n_bands: int) -> np.ndarray:
 
 def drive_noise(rec: VehicleRecording, d: DriveRegressors, cfg: VehicleIdentifyConfig,
                 weight: Callable[[np.ndarray], np.ndarray] | None, edges_hz: np.ndarray,
-                body_sigma_mps2: float, car_sigma_mps2: tuple[float, float]) -> DriveNoise:
+                body_sigma_mps2: float, car_sigma_mps2: tuple[float, float],
+                correlation: Sequence[str] = (), pairs: bool = False) -> DriveNoise:
     """The noise's expected share in the drive's Gram matrices, per band: body sensors and
-    car signals known, hub sensors per unit white noise (starting as noisy as the body's).
+    car signals known, hub sensors per unit of each component of their covariance
+    (independent; ``correlation``: ``left_right``, ``front_rear``), starting as noisy as
+    the body's and independent. ``pairs``: also the products of different equations.
     """
     resp = filter_response(rec, cfg, weight, edges_hz)
     body = [0.0] * 4 + [body_sigma_mps2] * 4
-    known = np.stack([noise_gram(d, body, r, car_sigma_mps2, r) for r in resp], axis=1)
+    known = np.stack([noise_gram(d, body, r, car_sigma_mps2, r, pairs=pairs) for r in resp],
+                     axis=1)
     units = [np.diag([1.0] * 4 + [0.0] * 4)]
-    pairs = {"left_right": ((0, 1), (2, 3)), "front_rear": ((0, 2), (1, 3))}
-    for name in cfg.hub_noise_correlation:
+    channel_pairs = {"left_right": ((0, 1), (2, 3)), "front_rear": ((0, 2), (1, 3))}
+    for name in correlation:
         u = np.zeros((8, 8))
-        for i, k in pairs[name]:
+        for i, k in channel_pairs[name]:
             u[i, k] = u[k, i] = 1.0
         units.append(u)
-    hub = np.stack([np.stack([noise_gram(d, [], r, channel_cov=u) for r in resp], axis=1)
-                    for u in units])
+    hub = np.stack([np.stack([noise_gram(d, [], r, channel_cov=u, pairs=pairs) for r in resp],
+                             axis=1) for u in units])
     s2 = np.zeros((len(units), len(resp)))
     s2[0] = body_sigma_mps2**2
     return DriveNoise(known, hub, s2)
@@ -582,38 +638,109 @@ def _compensated_fit(recs: Sequence[VehicleRecording], drives: Sequence[DriveReg
     car_sigma = [car_accel_noise_std_mps2(rec) for rec in recs]
     edges = band_edges_hz(cfg.band_hz, cfg.hub_noise_bands)
 
-    def setup(ds: Sequence[DriveRegressors], wts: Sequence[Callable | None]):
-        noise = [drive_noise(rec, d, cfg, wt, edges, bs, cs)
-                 for rec, d, wt, bs, cs in zip(recs, ds, wts, body_sigma, car_sigma)]
-        grams = [block_grams(d, block) for d in ds]
-        return noise, [g for g, _ in grams], [n for _, n in grams]
+    def setup(ds: Sequence[DriveRegressors], wts: Sequence[Callable | None],
+              correlation: Sequence[str] = (), pairs: bool = False) -> list[DriveNoise]:
+        return [drive_noise(rec, d, cfg, wt, edges, bs, cs, correlation, pairs)
+                for rec, d, wt, bs, cs in zip(recs, ds, wts, body_sigma, car_sigma,
+                                                  strict=True)]
+
+    def grams_of(ds: Sequence[DriveRegressors]) -> tuple[list, list]:
+        g = [block_grams(d, block) for d in ds]
+        return [x for x, _ in g], [n for _, n in g]
 
     weights: list[Callable[[np.ndarray], np.ndarray] | None] = [None] * len(recs)
-    noise, grams, samples = setup(drives, weights)
+    grams, samples = grams_of(drives)
     fit_drives = list(drives)
     if cfg.noise_weighting:
-        first = compensated_least_squares(grams, samples, fitted, noise, jackknife=False)
+        first = compensated_least_squares(grams, samples, fitted, setup(drives, weights),
+                                          jackknife=False)
         weights = [noise_weighting(d, first.theta, [bs] * 8, cs, cfg.band_hz)
-                   for d, bs, cs in zip(drives, body_sigma, car_sigma)]
+                   for d, bs, cs in zip(drives, body_sigma, car_sigma, strict=True)]
         fit_drives = []
-        for rec, d, wt in zip(recs, drives, weights):
+        for rec, d, wt in zip(recs, drives, weights, strict=True):
             dw = prepare_drive(rec, cfg, wt)
             dw.added_mass_kg, dw.added_mass_at_m = d.added_mass_kg, d.added_mass_at_m
             fit_drives.append(dw)
-        noise, grams, samples = setup(fit_drives, weights)
-    band_grams = None
-    iterations = 0
-    if cfg.hub_noise == "spectrum":
-        iterations = cfg.hub_noise_iterations
-        band_grams = [np.stack([block_grams(part, block)[0] for part in band_split(d, edges)],
-                               axis=2) for d in fit_drives]
-    w = compensated_least_squares(grams, samples, fitted, noise, band_grams, iterations,
-                                  bias_correction=cfg.jackknife_bias)
+        grams, samples = grams_of(fit_drives)
+    info: dict[str, Any] = {"body_noise_std_mps2": body_sigma,
+                            "car_accel_noise_std_mps2": car_sigma, "band_edges_hz": edges,
+                            "weights": weights}
+    if cfg.hub_noise != "spectrum":
+        w = compensated_least_squares(grams, samples, fitted, setup(fit_drives, weights),
+                                      bias_correction=cfg.jackknife_bias)
+    else:
+        # the hub noise spectrum estimated from the equation errors, band by band
+        band_grams = [np.stack([block_grams(part, block, True)[0]
+                                for part in band_split(d, edges)], axis=2)
+                      for d in fit_drives]
+        w = compensated_least_squares(
+            grams, samples, fitted, setup(fit_drives, weights, cfg.hub_noise_correlation,
+                                          cfg.hub_noise_cross_products),
+            [g if cfg.hub_noise_cross_products else g[:3] for g in band_grams],
+            cfg.hub_noise_iterations, bias_correction=cfg.jackknife_bias)
+        info["hub_noise_std_mps2"] = np.sqrt(w.hub_noise_s2[:, 0])
+        if cfg.hub_noise_correlation:
+            info["hub_noise_correlation"] = w.hub_noise_s2[:, 1:] / np.maximum(
+                w.hub_noise_s2[:, :1], 1e-300)
+        if cfg.structure_doubt:
+            # the hub noise's structure (which hubs share it) is not fully identifiable from
+            # the three equations: the estimate with another structure (left-right and
+            # front-rear covariances, fitted to the equations' cross products too) is
+            # carried as a systematic uncertainty
+            alt_corr, alt_pairs = cfg.structure_alternative
+            alt = compensated_least_squares(
+                grams, samples, fitted, setup(fit_drives, weights, alt_corr, alt_pairs),
+                [g if alt_pairs else g[:3] for g in band_grams], cfg.hub_noise_iterations,
+                jackknife=False)
+            delta = cfg.structure_doubt * np.nan_to_num(alt.theta - w.theta)
+            w.cov = w.cov + np.outer(delta, delta)
+            info["structure_shift"] = float(alt.theta[0] / w.theta[0] - 1.0)
     raw = compensated_least_squares(grams, samples, fitted, None, jackknife=False)
-    info = {"body_noise_std_mps2": body_sigma, "car_accel_noise_std_mps2": car_sigma,
-            "band_edges_hz": edges, "weights": weights,
-            "hub_noise_std_mps2": np.sqrt(w.hub_noise_s2[:, 0])}
     return w, raw, info
+
+
+def noise_warnings(info: dict[str, Any], w: WlsResult, hub_ratio: float = 2.0,
+                   dominance: float = 0.5) -> list[str]:
+    """What the noise says about the result, in words.
+
+    Parameters
+    ----------
+    info : dict
+        The noise information of :func:`_compensated_fit`.
+    w : WlsResult
+    hub_ratio : float
+        Hub noise over the body sensors' noise (white-equivalent, in any band) beyond which
+        it is reported.
+    dominance : float
+        Relative change of the mass by the compensation beyond which the result is said
+        to rest on it.
+    """
+    out = []
+    hub = info.get("hub_noise_std_mps2")
+    if hub is not None:
+        body = np.asarray(info["body_noise_std_mps2"], float)[:, None]
+        ratio = np.asarray(hub, float) / np.maximum(body, 1e-12)
+        if np.max(ratio) > hub_ratio:
+            out.append(
+                f"the hub channels carry up to {np.max(hub):.3g} m/s^2 (white-equivalent) that "
+                f"is not motion, {np.max(ratio):.1f} x the body sensors' noise: aliasing of "
+                "the wheel's high-frequency acceleration (a DAQ with a gentle anti-alias "
+                "filter: record at 500 Hz or more, or with a steep filter), noisier hub "
+                "sensors, or a model that does not fit (check with fielddiag diagnose); it "
+                "is compensated and its uncertainty is in the standard deviations, not a "
+                "model error")
+    shift = info.get("compensation_shift")
+    if shift is not None and abs(shift) > dominance:
+        out.append(
+            f"the sensor noise dominates the equations: its compensation changed the mass "
+            f"by {100 * shift:+.0f} %, so the result rests on the noise model; drive longer, "
+            "on a rougher road, or with a larger added mass")
+    rel = w.std[0] / abs(w.theta[0]) if w.theta[0] else math.inf
+    if rel > 0.03:
+        out.append(f"the sprung mass is uncertain by {100 * rel:.1f} % (1 std), more than "
+                   "the 3 % the method aims at; drive longer, on a rougher road, or with a "
+                   "larger added mass")
+    return out
 
 
 def identify_vehicle(
@@ -693,6 +820,7 @@ def identify_vehicle(
         # fully correlated scale uncertainty
         shift = w.theta[0] / raw.theta[0] - 1.0
         w.scale_std = float(np.hypot(config.compensation_doubt * shift, config.scale_floor))
+        noise_info["compensation_shift"] = float(shift)
     else:
         grams = [block_grams(d, block) for d in drives]
         w = compensated_least_squares([g for g, _ in grams], [n for _, n in grams], fitted,
@@ -737,10 +865,16 @@ def identify_vehicle(
         f"{config.filter_order}, sosfiltfilt), heave/pitch/roll from the 4 body sensors "
         "(least squares), 3 body equations linear in 18 parameters stacked over the drive "
         f"before and after adding {added_mass_kg:g} kg at ({at[0]:g}, {at[1]:g}) m, "
-        "weighted least squares (per-equation weights, sensor-noise bias compensated), "
+        "weighted least squares (per-equation weights"
+        + (", weighted in frequency by the noise's share of the equation errors"
+           if config.noise_weighting and config.noise_compensation else "")
+        + (", sensor-noise bias compensated: body sensors' noise from their redundancy, "
+           + ("the hubs' band by band from the equation errors"
+              if config.hub_noise == "spectrum" else "the hubs' taken as the body's")
+           if config.noise_compensation else "") + "), "
         f"a {100 * w.scale_std:.2f} % systematic scale uncertainty added, "
-        f"delete-a-block jackknife over {w.n_blocks} blocks of {config.block_s:g} s for the "
-        "covariance and the bias, "
+        f"delete-a-block jackknife over {w.n_blocks} blocks of {config.block_s:g} s "
+        "(the whole estimate repeated) for the covariance, "
         f"delta method for derived quantities{refined}; NRMSE = RMS error / RMS of the "
         "body accelerations simulated from the hub motion, after the first "
         f"{SETTLE_S:g} s")
@@ -754,4 +888,6 @@ def identify_vehicle(
                  for c in CORNERS},
         anti_roll_stiffness_front_n_per_m=est["arb_f"],
         anti_roll_stiffness_rear_n_per_m=est["arb_r"],
-        wls=w, cross_validation=cv, fit_nrmse=fit, method=method, refinement=refinement)
+        wls=w, cross_validation=cv, fit_nrmse=fit, method=method, refinement=refinement,
+        noise={k: v for k, v in noise_info.items() if k != "weights"},
+        warnings=noise_warnings(noise_info, w))

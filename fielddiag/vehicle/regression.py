@@ -34,8 +34,8 @@ import numpy as np
 
 from fielddiag.channels import CORNERS
 
-__all__ = ["PARAM_NAMES", "DriveNoise", "DriveRegressors", "WlsResult", "band_split",
-           "block_grams", "compensated_least_squares", "equation_error_transfer",
+__all__ = ["EQUATION_PAIRS", "PARAM_NAMES", "DriveNoise", "DriveRegressors", "WlsResult",
+           "band_split", "block_grams", "compensated_least_squares", "equation_error_transfer",
            "equation_rows", "noise_gram", "noise_normal_equations", "predict_body_accel",
            "regressors", "weighted_least_squares"]
 
@@ -345,7 +345,7 @@ def equation_error_transfer(d: DriveRegressors, theta: np.ndarray) -> np.ndarray
 def noise_gram(d: DriveRegressors, sigma_mps2: Sequence[float], response: np.ndarray,
                car_sigma_mps2: tuple[float, float] = (0.0, 0.0),
                car_response: np.ndarray | None = None,
-               channel_cov: np.ndarray | None = None) -> np.ndarray:
+               channel_cov: np.ndarray | None = None, pairs: bool = False) -> np.ndarray:
     """Expected share of white accelerometer noise in one drive's augmented Gram matrices.
 
     Every regressor and the right-hand side are linear maps of the eight channels' noise
@@ -372,12 +372,14 @@ def noise_gram(d: DriveRegressors, sigma_mps2: Sequence[float], response: np.nda
     channel_cov : ndarray (8, 8) or None
         Instead of ``sigma_mps2``: the channels' noise covariance [m^2/s^4] (noise common
         to several channels, e.g. what the road puts into the hubs); ``response`` (3, 3).
+    pairs : bool
+        Also the products of different equations (:data:`EQUATION_PAIRS`).
 
     Returns
     -------
-    ndarray (3, N_PARAMS + 1, N_PARAMS + 1)
-        ``E[[A, b]^T [A, b]]`` of the heave, pitch and roll equations, summed over the
-        drive's samples, unweighted.
+    ndarray (3 or 6, N_PARAMS + 1, N_PARAMS + 1)
+        ``E[[A, b]^T [A, b]]`` of the heave, pitch and roll equations (and their pairs),
+        summed over the drive's samples, unweighted.
     """
     a, b = _noise_basis(d)  # (3, 24, P), (3, 24)
     aug = np.concatenate([a, b[..., None]], axis=2)
@@ -390,7 +392,10 @@ def noise_gram(d: DriveRegressors, sigma_mps2: Sequence[float], response: np.nda
         for ch in range(8):
             idx = slice(3 * ch, 3 * ch + 3)
             s[idx, idx] = float(sigma_mps2[ch]) ** 2 * resp[ch]
-    out = d.n * np.einsum("eip,ij,ejq->epq", aug, s, aug)
+    which = EQUATION_PAIRS if pairs else EQUATION_PAIRS[:3]
+    left = [g for g, _ in which]
+    right = [h for _, h in which]
+    out = d.n * np.einsum("eip,ij,ejq->epq", aug[left], s, aug[right])
     if any(car_sigma_mps2):
         if car_response is None:
             if np.ndim(response) == 3:
@@ -443,23 +448,43 @@ def band_split(d: DriveRegressors, band_edges_hz: Sequence[float]) -> list[Drive
     return out
 
 
-def block_grams(d: DriveRegressors, block_samples: int) -> tuple[np.ndarray, np.ndarray]:
+def block_grams(d: DriveRegressors, block_samples: int, pairs: bool = False
+                ) -> tuple[np.ndarray, np.ndarray]:
     """Gram matrices ``[A, b]^T [A, b]`` of each equation over consecutive time blocks.
+
+    Parameters
+    ----------
+    d : DriveRegressors
+    block_samples : int
+    pairs : bool
+        Also the products of different equations' rows (:data:`EQUATION_PAIRS`).
 
     Returns
     -------
-    grams : ndarray (3, n_blocks, N_PARAMS + 1, N_PARAMS + 1)
+    grams : ndarray (3 or 6, n_blocks, N_PARAMS + 1, N_PARAMS + 1)
     samples : ndarray (n_blocks,)
         Samples in each block.
     """
     a, b = equation_rows(d)
-    aug = np.concatenate([a, b[..., None]], axis=2)
-    starts = np.arange(0, d.n, max(1, int(block_samples)))
-    out = np.empty((3, starts.size, aug.shape[2], aug.shape[2]))
-    for i, s0 in enumerate(starts):
-        seg = aug[:, s0: s0 + block_samples]
-        out[:, i] = np.einsum("enp,enq->epq", seg, seg)
+    aug = np.concatenate([a, b[..., None]], axis=2)  # (3, n, P + 1)
+    bs = max(1, int(block_samples))
+    starts = np.arange(0, d.n, bs)
+    which = EQUATION_PAIRS if pairs else EQUATION_PAIRS[:3]
+    left = [g for g, _ in which]
+    right = [h for _, h in which]
+    full = d.n // bs
+    blocks = aug[:, : full * bs].reshape(3, full, bs, aug.shape[2])
+    out = np.empty((len(which), starts.size, aug.shape[2], aug.shape[2]))
+    out[:, :full] = np.matmul(blocks[left].transpose(0, 1, 3, 2), blocks[right])
+    if starts.size > full:  # the last, shorter block
+        seg = aug[:, full * bs:]
+        out[:, full] = np.matmul(seg[left].transpose(0, 2, 1), seg[right])
     return out, np.diff(np.append(starts, d.n))
+
+
+#: Pairs of equations (heave 0, pitch 1, roll 2) whose products :func:`block_grams` and
+#: :func:`noise_gram` give with ``pairs=True``: the three squares, then the cross products.
+EQUATION_PAIRS = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
 
 
 @dataclass
@@ -568,8 +593,8 @@ def compensated_least_squares(grams: Sequence[np.ndarray], samples: Sequence[np.
         for k in range(k_dr):
             c = gf[k]
             if noise is not None:
-                c = c - frac[k] * (known[k].sum(axis=1)
-                                   + np.einsum("cj,cejpq->epq", s2[k], hub[k]))
+                c = c - frac[k] * (known[k][:3].sum(axis=1)
+                                   + np.einsum("cj,cejpq->epq", s2[k], hub[k][:, :3]))
             lhs += np.einsum("e,epq->pq", w[k] ** 2, c[:, :m, :m])
             rhs += np.einsum("e,ep->p", w[k] ** 2, c[:, :m, m])
         return np.linalg.solve(lhs, rhs)
@@ -579,10 +604,13 @@ def compensated_least_squares(grams: Sequence[np.ndarray], samples: Sequence[np.
         z = np.append(th, -1.0)
         out = []
         for k in range(k_dr):
+            ne = bf[k].shape[0]  # 3 squares, or with the 3 cross products
             e_act = np.einsum("p,ejpq,q->ej", z, bf[k], z)
-            e_p = frac[k] * np.einsum("p,ejpq,q->ej", z, known[k], z)
-            e_q = frac[k] * np.einsum("p,cejpq,q->cej", z, hub[k], z)
-            wgt = 1.0 / np.maximum(e_act, 1e-300)  # relative misfit of each equation
+            e_p = frac[k] * np.einsum("p,ejpq,q->ej", z, known[k][:ne], z)
+            e_q = frac[k] * np.einsum("p,cejpq,q->cej", z, hub[k][:, :ne], z)
+            sq = np.maximum(e_act[:3], 1e-300)
+            # relative misfit of each product: over sqrt(E_gg E_hh)
+            wgt = 1.0 / np.sqrt(np.array([sq[g] * sq[h] for g, h in EQUATION_PAIRS[:ne]]))
             coef = np.zeros((e_q.shape[0], e_q.shape[2]))
             for j in range(coef.shape[1]):
                 sol = np.linalg.lstsq((e_q[:, :, j] * wgt[:, j]).T,
