@@ -316,7 +316,9 @@ class VehicleIdentification:
     noise : dict
         The noise the compensation used: ``body_noise_std_mps2`` and
         ``car_accel_noise_std_mps2`` per drive, ``hub_noise_std_mps2`` (drives, bands;
-        white-equivalent at the recording's rate), ``hub_noise_correlation``,
+        white-equivalent at the recording's rate), ``hub_noise_ratio`` (per drive, over the
+        body sensors', the bands weighted by their share of the equation errors),
+        ``hub_noise_correlation``,
         ``band_edges_hz``, ``compensation_shift`` (relative change of the mass the
         compensation made), ``structure_shift``.
     warnings : list of str
@@ -673,12 +675,22 @@ def _compensated_fit(recs: Sequence[VehicleRecording], drives: Sequence[DriveReg
         band_grams = [np.stack([block_grams(part, block, True)[0]
                                 for part in band_split(d, edges)], axis=2)
                       for d in fit_drives]
+        noise = setup(fit_drives, weights, cfg.hub_noise_correlation,
+                      cfg.hub_noise_cross_products)
         w = compensated_least_squares(
-            grams, samples, fitted, setup(fit_drives, weights, cfg.hub_noise_correlation,
-                                          cfg.hub_noise_cross_products),
+            grams, samples, fitted, noise,
             [g if cfg.hub_noise_cross_products else g[:3] for g in band_grams],
             cfg.hub_noise_iterations, bias_correction=cfg.jackknife_bias)
         info["hub_noise_std_mps2"] = np.sqrt(w.hub_noise_s2[:, 0])
+        # the hub noise over the body sensors' as the equation errors see it: the bands
+        # weighted by what a unit of hub noise there puts into the errors
+        z = np.append(np.nan_to_num(w.theta), -1.0)
+        ratio = []
+        for k, nz in enumerate(noise):
+            q = np.einsum("p,ejpq,q->j", z, nz.hub_unit[0, :3], z)
+            ratio.append(float(np.sqrt(np.sum(w.hub_noise_s2[k, 0] * q) / max(
+                np.sum(body_sigma[k] ** 2 * q), 1e-300))))
+        info["hub_noise_ratio"] = ratio
         if cfg.hub_noise_correlation:
             info["hub_noise_correlation"] = w.hub_noise_s2[:, 1:] / np.maximum(
                 w.hub_noise_s2[:, :1], 1e-300)
@@ -699,7 +711,7 @@ def _compensated_fit(recs: Sequence[VehicleRecording], drives: Sequence[DriveReg
     return w, raw, info
 
 
-def noise_warnings(info: dict[str, Any], w: WlsResult, hub_ratio: float = 2.0,
+def noise_warnings(info: dict[str, Any], w: WlsResult, hub_ratio: float = 1.5,
                    dominance: float = 0.5) -> list[str]:
     """What the noise says about the result, in words.
 
@@ -709,26 +721,24 @@ def noise_warnings(info: dict[str, Any], w: WlsResult, hub_ratio: float = 2.0,
         The noise information of :func:`_compensated_fit`.
     w : WlsResult
     hub_ratio : float
-        Hub noise over the body sensors' noise (white-equivalent, in any band) beyond which
-        it is reported.
+        Hub noise over the body sensors' noise (``hub_noise_ratio``: rms, the bands
+        weighted by their share of the equation errors) beyond which it is reported.
     dominance : float
         Relative change of the mass by the compensation beyond which the result is said
         to rest on it.
     """
     out = []
-    hub = info.get("hub_noise_std_mps2")
-    if hub is not None:
-        body = np.asarray(info["body_noise_std_mps2"], float)[:, None]
-        ratio = np.asarray(hub, float) / np.maximum(body, 1e-12)
-        if np.max(ratio) > hub_ratio:
-            out.append(
-                f"the hub channels carry up to {np.max(hub):.3g} m/s^2 (white-equivalent) that "
-                f"is not motion, {np.max(ratio):.1f} x the body sensors' noise: aliasing of "
-                "the wheel's high-frequency acceleration (a DAQ with a gentle anti-alias "
-                "filter: record at 500 Hz or more, or with a steep filter), noisier hub "
-                "sensors, or a model that does not fit (check with fielddiag diagnose); it "
-                "is compensated and its uncertainty is in the standard deviations, not a "
-                "model error")
+    ratio = info.get("hub_noise_ratio")
+    if ratio is not None and max(ratio) > hub_ratio:
+        out.append(
+            f"the hub channels carry {max(ratio):.1f} x the body sensors' noise (as the "
+            "equations see it; up to "
+            f"{np.max(info['hub_noise_std_mps2']):.3g} m/s^2 white-equivalent in a band): "
+            "aliasing of the wheel's high-frequency acceleration (a DAQ with a gentle "
+            "anti-alias filter: record at 500 Hz or more, or with a steep filter), noisier "
+            "hub sensors, or a model that does not fit (check with fielddiag diagnose). It "
+            "is compensated as noise and its uncertainty is in the standard deviations; "
+            "if it is a model error, the result is biased")
     shift = info.get("compensation_shift")
     if shift is not None and abs(shift) > dominance:
         out.append(
