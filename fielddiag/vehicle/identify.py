@@ -3,13 +3,14 @@
 :func:`identify_vehicle` -> :class:`VehicleIdentification`. Method (seed 003, adapted to
 output-only accelerometer data):
 
-1. Each drive's eight accelerometers (gravity and offsets removed) are band-pass filtered
-   without phase shift (Butterworth, ``scipy.signal.sosfiltfilt``) and integrated twice
-   (trapezoid), the band-pass applied after each integration and the same number of
-   times to every quantity, so that accelerations, velocities and displacements are the
-   same linear filter of the true motion and the equations of motion hold between them
-   exactly. The car's longitudinal and lateral accelerations get the same filter. The
-   ends (filter transients) are dropped and the signals decimated to the analysis rate.
+1. Each drive's eight accelerometers (gravity and offsets removed) are integrated twice
+   in the frequency domain (:func:`integrate_twice`) and band-pass filtered without phase
+   shift (Butterworth, ``scipy.signal.sosfiltfilt``), the same filters (and the frequency
+   weighting of step 3) applied to every quantity, so that accelerations, velocities and
+   displacements are the same linear filter of the true motion and the equations of
+   motion hold between them exactly. The car's longitudinal and lateral accelerations
+   get the same filter. The ends (filter transients) are dropped and the signals
+   decimated to the analysis rate.
 2. The four body sensors give heave, pitch and roll at the origin (least squares), hence
    the body motion above each hub and the suspension extension and its rate.
 3. The body equations (:mod:`fielddiag.vehicle.regression`), linear in mass, first

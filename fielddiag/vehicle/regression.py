@@ -195,10 +195,11 @@ class WlsResult:
         Time blocks of the jackknife.
     scale_std : float
         Relative systematic uncertainty of the common scale included in ``cov``.
-    hub_noise_s2 : ndarray (drives, bands) or None
-        The hub channels' noise the compensation used, per drive and frequency band, as the
-        variance of white noise at the recording's rate with the same density there
-        [m^2/s^4] (:func:`compensated_least_squares`).
+    hub_noise_s2 : ndarray (drives, components, bands) or None
+        The hub channels' noise the compensation used, per drive and frequency band: each
+        hub's variance as that of white noise at the recording's rate with the same
+        density there, then the covariances (:class:`DriveNoise`) [m^2/s^4]
+        (:func:`compensated_least_squares`).
     """
 
     theta: np.ndarray
@@ -493,10 +494,11 @@ class DriveNoise:
 
     Attributes
     ----------
-    known : ndarray (3, n_bands, N_PARAMS + 1, N_PARAMS + 1)
+    known : ndarray (3 or 6, n_bands, N_PARAMS + 1, N_PARAMS + 1)
         From the body sensors (noise measured from their redundancy) and the car
-        acceleration signals (:func:`noise_gram`).
-    hub_unit : ndarray (n_components, 3, n_bands, N_PARAMS + 1, N_PARAMS + 1)
+        acceleration signals (:func:`noise_gram`), per equation (and pair of equations,
+        :data:`EQUATION_PAIRS`).
+    hub_unit : ndarray (n_components, 3 or 6, n_bands, N_PARAMS + 1, N_PARAMS + 1)
         From the four hub sensors, per unit of each component of their noise covariance in
         each band: component 0 the variance of each hub (white noise with the same density
         in the band, independent hubs), component 1 (if given) a covariance common to the
@@ -531,10 +533,14 @@ def compensated_least_squares(grams: Sequence[np.ndarray], samples: Sequence[np.
 
     Hub noise (``hub_iterations > 0``): the equation errors ``[theta, -1] G [theta, -1]^T``
     of a model that fits hold only noise; in each band ``j`` their energy is the known
-    share plus ``s2_j`` times the unit hub share, so ``s2_j`` follows per drive by least
-    squares over its three equations (relative misfits, ``s2 >= 0``); theta and ``s2`` are
-    iterated (fixed point). Whatever the hub channels carry that is not motion (aliased
-    high-frequency acceleration, electronics noise) is compensated so, white or not.
+    share plus the hub covariance's components (``DriveNoise.hub_unit``: each hub's
+    variance, optionally left-right and front-rear covariances) times their unit shares,
+    so the components follow per drive by least squares over its three equations (and the
+    cross products of equations, if ``band_grams`` has them), relative misfits, variance
+    >= 0, |covariance| <= variance; theta and the components are iterated (fixed point).
+    Whatever the hub channels carry that is not motion (aliased high-frequency
+    acceleration, electronics noise) is compensated so, white or not. The jackknife
+    repeats this in every replicate.
 
     Parameters
     ----------
@@ -546,8 +552,9 @@ def compensated_least_squares(grams: Sequence[np.ndarray], samples: Sequence[np.
         Columns to fit (the others are held at 0).
     noise : sequence of DriveNoise or None
         Per drive; None: no compensation.
-    band_grams : sequence of ndarray (3, n_blocks, n_bands, P + 1, P + 1) or None
-        Per drive, :func:`block_grams` of :func:`band_split` (needed for the hub noise).
+    band_grams : sequence of ndarray (3 or 6, n_blocks, n_bands, P + 1, P + 1) or None
+        Per drive, :func:`block_grams` of :func:`band_split` (needed for the hub noise;
+        6: with the cross products of equations, then ``DriveNoise`` must have them).
     hub_iterations : int
         Rounds of the hub-noise fixed point (0: ``DriveNoise.hub_s2`` used as given).
     jackknife : bool
@@ -558,7 +565,7 @@ def compensated_least_squares(grams: Sequence[np.ndarray], samples: Sequence[np.
     Returns
     -------
     WlsResult
-        With ``hub_noise_s2`` (drives, bands) when there is noise.
+        With ``hub_noise_s2`` (drives, components, bands) when there is noise.
     """
     p = fitted.size
     cols = np.flatnonzero(fitted)
