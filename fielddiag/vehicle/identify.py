@@ -883,7 +883,10 @@ def identify_vehicle(
            + ("the hubs' band by band from the equation errors"
               if config.hub_noise == "spectrum" else "the hubs' taken as the body's")
            if config.noise_compensation else "") + "), "
-        f"a {100 * w.scale_std:.2f} % systematic scale uncertainty added, "
+        f"a {100 * w.scale_std:.2f} % systematic scale uncertainty added"
+        + (", and the difference to the estimate with another structure of the hub noise "
+           "(left-right and front-rear covariances)"
+           if "structure_shift" in noise_info else "") + ", "
         f"delete-a-block jackknife over {w.n_blocks} blocks of {config.block_s:g} s "
         "(the whole estimate repeated) for the covariance, "
         f"delta method for derived quantities{refined}; NRMSE = RMS error / RMS of the "
