@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import tempfile
 import time
 from pathlib import Path
@@ -91,10 +92,13 @@ def one_case(seed: int, duration_s: float,
         err = est.value - t
         rows[name] = {"err": err / t if kind == "rel" else err, "z": err / est.std,
                       "std": est.std / abs(t) if kind == "rel" else est.std}
+    hub = res.noise.get("hub_noise_std_mps2")
     return {"seed": seed, "rate_hz": rate, "road": road, "noise": noise, "added_mass_kg": dm,
             "rows": rows, "cv_nrmse": res.cross_validation[0]["nrmse"],
             "fit_nrmse": res.fit_nrmse, "identify_s": elapsed,
-            "refined": bool(res.refinement.get("applied"))}
+            "refined": bool(res.refinement.get("applied")),
+            "hub_noise_mps2": None if hub is None else float(np.median(hub)),
+            "warnings": list(res.warnings)}
 
 
 def timing(duration_s: float = 180.0, repeats: int = 3) -> list[float]:
@@ -142,7 +146,9 @@ def main() -> None:
               f"dM {c['added_mass_kg']:5.1f} kg  mass err "
               f"{100 * c['rows']['sprung_mass_kg']['err']:+.2f} %"
               f"  cv NRMSE {c['cv_nrmse']:.3f}  worst z {worst[0]} {worst[1]['z']:+.1f}  "
-              f"identify {c['identify_s']:.1f} s{' (OE)' if c['refined'] else ''}", flush=True)
+              f"identify {c['identify_s']:.1f} s{' (OE)' if c['refined'] else ''}"
+              + (f"  hub noise {c['hub_noise_mps2']:.3f}" if c["hub_noise_mps2"] else "")
+              + (f"  {len(c['warnings'])} warning(s)" if c["warnings"] else ""), flush=True)
     print(f"\n{'quantity':36s} {'median|err|':>11s} {'p95|err|':>9s} {'in budget':>9s} "
           f"{'2std cov':>8s} {'3std cov':>8s} {'med std':>8s}")
     names = list(cases[0]["rows"])
@@ -171,8 +177,9 @@ def main() -> None:
           f"cases {time.perf_counter() - t_all:.0f} s")
     t = timing()
     times = ", ".join(f"{x:.2f}" for x in t)
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     print(f"identify of two 180 s drives at 500 Hz from session files: {times} s "
-          f"(median {np.median(t):.2f} s)")
+          f"(median {np.median(t):.2f} s; load average {load:.1f})")
     if args.json:
         Path(args.json).write_text(json.dumps({"seed": args.seed, "n": args.n,
                                                "duration_s": args.duration, "summary": summary,

@@ -3,21 +3,32 @@
 :func:`identify_vehicle` -> :class:`VehicleIdentification`. Method (seed 003, adapted to
 output-only accelerometer data):
 
-1. Each drive's eight accelerometers (gravity and offsets removed) are band-pass filtered
-   without phase shift (Butterworth, ``scipy.signal.sosfiltfilt``) and integrated twice
-   (trapezoid), the band-pass applied after each integration and the same number of
-   times to every quantity, so that accelerations, velocities and displacements are the
-   same linear filter of the true motion and the equations of motion hold between them
-   exactly. The car's longitudinal and lateral accelerations get the same filter. The
-   ends (filter transients) are dropped and the signals decimated to the analysis rate.
+1. Each drive's eight accelerometers (gravity and offsets removed) are integrated twice
+   in the frequency domain (:func:`integrate_twice`) and band-pass filtered without phase
+   shift (Butterworth, ``scipy.signal.sosfiltfilt``), the same filters (and the frequency
+   weighting of step 3) applied to every quantity, so that accelerations, velocities and
+   displacements are the same linear filter of the true motion and the equations of
+   motion hold between them exactly. The car's longitudinal and lateral accelerations
+   get the same filter. The ends (filter transients) are dropped and the signals
+   decimated to the analysis rate.
 2. The four body sensors give heave, pitch and roll at the origin (least squares), hence
    the body motion above each hub and the suspension extension and its rate.
 3. The body equations (:mod:`fielddiag.vehicle.regression`), linear in mass, first
    moments, inertias, corner stiffness and damping, anti-roll stiffness and the roll and
    pitch moment arms, are stacked over both drives; the known added mass at its known
    position is the only non-zero right-hand side and fixes the scale. Weighted least
-   squares with a time-block jackknife gives every parameter a standard
-   deviation, relative standard deviations and correlations.
+   squares, the accelerometers' noise bias compensated (errors in variables), with a
+   time-block jackknife that repeats the whole estimate gives every parameter a
+   standard deviation, relative standard deviations and correlations. The noise:
+   the body sensors' from their redundancy; the hub sensors' (which also carries the
+   wheel's high-frequency acceleration a DAQ with a gentle anti-alias filter folds into
+   the band) band by band from the equation errors, with a covariance common to the
+   left and right hub (:func:`~fielddiag.vehicle.regression.compensated_least_squares`);
+   the equations weighted in frequency by one over the noise's share of their errors
+   (:func:`noise_weighting`, generalised least squares: double integration makes the
+   noise grow as ``1 / f^2`` towards the band's low end, where the suspension hardly
+   moves). The estimate with another structure of the hub noise (left-right and
+   front-rear covariances) is carried as a systematic uncertainty.
 4. Derived quantities (centre of gravity, inertias about it) get their standard
    deviations by the delta method.
 5. Output-error refinement (:mod:`fielddiag.vehicle.output_error`): the body simulated
@@ -36,7 +47,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -51,11 +62,15 @@ from fielddiag.vehicle.recording import VehicleRecording
 from fielddiag.vehicle.regression import (
     N_PARAMS,
     PARAM_NAMES,
+    DriveNoise,
     DriveRegressors,
     WlsResult,
-    noise_normal_equations,
+    band_split,
+    block_grams,
+    compensated_least_squares,
+    equation_error_transfer,
+    noise_gram,
     regressors,
-    weighted_least_squares,
 )
 
 __all__ = ["VehicleIdentifyConfig", "VehicleIdentification", "identify_vehicle",
@@ -96,12 +111,11 @@ class VehicleIdentifyConfig:
     noise_compensation : bool
         Remove the bias the accelerometer noise puts on least squares (errors in
         variables): the noise of the body sensors is measured from their redundancy
-        (:func:`body_noise_std_mps2`; the hub sensors are taken as equally noisy), that of
-        the car's acceleration signals above a quarter of the rate
-        (:func:`car_accel_noise_std_mps2`), its
-        expected share of the normal equations follows from the processing's transfer
-        functions (:func:`filter_response`,
-        :func:`~fielddiag.vehicle.regression.noise_normal_equations`) and is subtracted.
+        (:func:`body_noise_std_mps2`), that of the car's acceleration signals above a
+        quarter of the rate (:func:`car_accel_noise_std_mps2`), that of the hub sensors
+        (see ``hub_noise``); its expected share of the normal equations follows from the
+        processing's transfer functions (:func:`filter_response`,
+        :func:`~fielddiag.vehicle.regression.noise_gram`) and is subtracted.
     refine : bool
         Try the output-error refinement (:mod:`fielddiag.vehicle.output_error`) when there
         are validate drives, and keep it only if it predicts their body accelerations
@@ -110,6 +124,28 @@ class VehicleIdentifyConfig:
         simulated linear cars it was never kept (``fielddiag identify --refine``).
     refine_gain : float
         Relative NRMSE improvement the refinement must bring to be kept.
+    noise_weighting : bool
+        Weight the equations in frequency by one over the noise's share of their errors
+        (:func:`noise_weighting`) instead of flat over the band.
+    hub_noise : str
+        ``"spectrum"``: the hub sensors' noise estimated band by band from the equation
+        errors (it includes what aliasing folds into the band: on simulated 200 Hz drives
+        with a 4th-order anti-alias filter at 0.4 fs, as much as 0.02-0.06 m/s^2 of
+        white-equivalent noise, more than the sensors'); ``"body"``: taken as the body
+        sensors' (the method before issue 18's 200 Hz fix).
+    hub_noise_iterations : int
+        Rounds of the fixed point between the parameters and the hub noise.
+    hub_noise_bands : int
+        Bands of the hub noise spectrum (geometric between the band's edges).
+    hub_noise_correlation : tuple of str
+        Covariances of the hub noise estimated besides each hub's variance:
+        ``"left_right"`` (the two tracks of a road are alike; so is what they put into
+        the hubs), ``"front_rear"`` (three equations cannot fit both: with both, the
+        equations' cross products are used too, less stable).
+    structure_doubt : float
+        Times the difference between the estimate with ``hub_noise_correlation`` and
+        with both covariances (fitted to the cross products as well), added to the
+        covariance as a systematic uncertainty (0: off).
     """
 
     band_hz: tuple[float, float] = (0.5, 25.0)
@@ -125,6 +161,14 @@ class VehicleIdentifyConfig:
     noise_compensation: bool = True
     refine: bool = False
     refine_gain: float = 0.10
+    noise_weighting: bool = True
+    hub_noise: str = "spectrum"
+    hub_noise_iterations: int = 4
+    hub_noise_bands: int = 6
+    hub_noise_correlation: tuple[str, ...] = ("left_right",)
+    hub_noise_cross_products: bool = False
+    structure_alternative: tuple[tuple[str, ...], bool] = (("left_right", "front_rear"), True)
+    structure_doubt: float = 1.0
 
 
 def _bp(x: np.ndarray, sos: np.ndarray, times: int = 1) -> np.ndarray:
@@ -133,7 +177,8 @@ def _bp(x: np.ndarray, sos: np.ndarray, times: int = 1) -> np.ndarray:
     return x
 
 
-def integrate_twice(acc: np.ndarray, sample_rate_hz: float, low_hz: float
+def integrate_twice(acc: np.ndarray, sample_rate_hz: float, low_hz: float,
+                    weight: Callable[[np.ndarray], np.ndarray] | None = None
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Acceleration, velocity and displacement by exact integration in the frequency domain.
 
@@ -151,6 +196,9 @@ def integrate_twice(acc: np.ndarray, sample_rate_hz: float, low_hz: float
     sample_rate_hz : float
     low_hz : float
         Edge of the high-pass [Hz].
+    weight : callable or None
+        A real zero-phase gain ``weight(f_hz)`` applied to all three alike (the frequency
+        weighting of the least squares, :func:`noise_weighting`).
 
     Returns
     -------
@@ -162,6 +210,8 @@ def integrate_twice(acc: np.ndarray, sample_rate_hz: float, low_hz: float
     f = sp_fft.rfftfreq(n, 1.0 / sample_rate_hz)
     u = np.clip((f - 0.5 * low_hz) / (0.5 * low_hz), 0.0, 1.0)
     spec = spec * (0.5 - 0.5 * np.cos(np.pi * u))
+    if weight is not None:
+        spec = spec * weight(f)
     jw = 2j * np.pi * f
     jw[0] = 1.0
     vel = spec / jw
@@ -169,14 +219,16 @@ def integrate_twice(acc: np.ndarray, sample_rate_hz: float, low_hz: float
             sp_fft.irfft(vel / jw, n, axis=-1))
 
 
-def prepare_drive(rec: VehicleRecording, cfg: VehicleIdentifyConfig = VehicleIdentifyConfig()
-                  ) -> DriveRegressors:
+def prepare_drive(rec: VehicleRecording, cfg: VehicleIdentifyConfig = VehicleIdentifyConfig(),
+                  weight: Callable[[np.ndarray], np.ndarray] | None = None) -> DriveRegressors:
     """Band-passed, integrated, decimated body and suspension motion of one drive.
 
     Parameters
     ----------
     rec : VehicleRecording
     cfg : VehicleIdentifyConfig
+    weight : callable or None
+        Frequency weighting applied to every signal (:func:`noise_weighting`).
 
     Returns
     -------
@@ -202,8 +254,8 @@ def prepare_drive(rec: VehicleRecording, cfg: VehicleIdentifyConfig = VehicleIde
     sos = signal.butter(cfg.filter_order, [lo, hi], "bandpass", fs=fs, output="sos")
     acc = np.vstack([rec.wheel_accel_mps2, rec.body_accel_mps2]).astype(float)
     car = np.vstack([rec.signal_or_zero("accel_long"), rec.signal_or_zero("accel_lat")])
-    a0, v0, x0 = integrate_twice(acc, fs, 0.5 * lo)
-    c0 = integrate_twice(car, fs, 0.5 * lo)[0]
+    a0, v0, x0 = integrate_twice(acc, fs, 0.5 * lo, weight)
+    c0 = integrate_twice(car, fs, 0.5 * lo, weight)[0]
     a3, v3, x1, car = (_bp(y, sos, cfg.passes) for y in (a0, v0, x0, c0))
     step = max(1, int(fs // cfg.analysis_rate_hz))
     trim = int(round((4.5 / lo if cfg.trim_s is None else cfg.trim_s) * fs))
@@ -262,6 +314,16 @@ class VehicleIdentification:
     refinement : dict
         The output-error refinement: ``applied``, ``judged_on`` and the NRMSE of the
         least-squares and of the refined parameters it was judged by.
+    noise : dict
+        The noise the compensation used: ``body_noise_std_mps2`` and
+        ``car_accel_noise_std_mps2`` per drive, ``hub_noise_std_mps2`` (drives, bands;
+        white-equivalent at the recording's rate), ``hub_noise_ratio`` (per drive, over the
+        body sensors', the bands weighted by their share of the equation errors),
+        ``hub_noise_correlation``,
+        ``band_edges_hz``, ``compensation_shift`` (relative change of the mass the
+        compensation made), ``structure_shift``.
+    warnings : list of str
+        What limits the result, in words (also in :meth:`summary`).
     """
 
     sprung_mass_kg: Estimate
@@ -277,6 +339,8 @@ class VehicleIdentification:
     fit_nrmse: dict[str, float] = field(default_factory=dict)
     method: str = ""
     refinement: dict[str, Any] = field(default_factory=dict)
+    noise: dict[str, Any] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         """The contract's JSON: each quantity ``{"value", "std"}`` in SI units."""
@@ -334,6 +398,14 @@ class VehicleIdentification:
         if strong:
             lines.append("  strongly correlated: " + ", ".join(
                 f"{a}/{b} {r:+.2f}" for a, b, r in strong[:6]))
+        if "hub_noise_std_mps2" in self.noise:
+            for k, label in enumerate(("before", "after")):
+                hub = np.asarray(self.noise["hub_noise_std_mps2"])[k]
+                lines.append(
+                    f"  sensor noise, {label}: body {self.noise['body_noise_std_mps2'][k]:.3g}"
+                    f" m/s^2, hubs {hub.min():.3g}-{hub.max():.3g} m/s^2 (white-equivalent, "
+                    "by band)")
+        lines.extend(f"  warning: {w}" for w in self.warnings)
         return "\n".join(lines)
 
 
@@ -420,13 +492,19 @@ def car_accel_noise_std_mps2(rec: VehicleRecording) -> tuple[float, float]:
     return out[0], out[1]
 
 
-def filter_response(rec: VehicleRecording, cfg: VehicleIdentifyConfig) -> np.ndarray:
+def filter_response(rec: VehicleRecording, cfg: VehicleIdentifyConfig,
+                    weight: Callable[[np.ndarray], np.ndarray] | None = None,
+                    band_edges_hz: Sequence[float] | None = None) -> np.ndarray:
     """Lag-0 cross-correlations of the acceleration, velocity and displacement filters of
-    :func:`prepare_drive` for unit white noise: ``R[f, g] = (1/n) sum_k H_f H_g*``.
+    :func:`prepare_drive` (with the same ``weight``) for unit white noise:
+    ``R[f, g] = (1/n) sum_k H_f H_g*``.
+
+    With ``band_edges_hz`` (increasing, from 0, may end with inf), the same for each band
+    ``[edge_j, edge_j+1)`` separately, (n_bands, 3, 3); they sum to the whole.
 
     Returns
     -------
-    ndarray (3, 3)
+    ndarray (3, 3) or (n_bands, 3, 3)
     """
     fs, n = float(rec.sample_rate_hz), rec.n
     lo, hi = cfg.band_hz
@@ -435,6 +513,8 @@ def filter_response(rec: VehicleRecording, cfg: VehicleIdentifyConfig) -> np.nda
     u = np.clip((f - 0.25 * lo) / (0.25 * lo), 0.0, 1.0)
     _, bresp = signal.sosfreqz(sos, worN=f, fs=fs)
     gain = (0.5 - 0.5 * np.cos(np.pi * u)) * np.abs(bresp) ** (2 * cfg.passes)
+    if weight is not None:
+        gain = gain * weight(f)
     jw = 2j * np.pi * f
     jw[0] = 1.0
     h = np.array([gain, gain / jw, gain / jw**2])
@@ -442,7 +522,14 @@ def filter_response(rec: VehicleRecording, cfg: VehicleIdentifyConfig) -> np.nda
     wts[0] = 1.0
     if n % 2 == 0:
         wts[-1] = 1.0
-    return np.real((h * wts) @ h.conj().T) / n
+    if band_edges_hz is None:
+        return np.real((h * wts) @ h.conj().T) / n
+    idx = np.searchsorted(np.asarray(band_edges_hz, float), f, side="right") - 1
+    out = np.zeros((len(band_edges_hz) - 1, 3, 3))
+    for j in range(out.shape[0]):
+        m = idx == j
+        out[j] = np.real((h[:, m] * wts[m]) @ h[:, m].conj().T) / n
+    return out
 
 
 def _nrmse(pred: np.ndarray, meas: np.ndarray) -> float:
@@ -453,6 +540,218 @@ def sim_nrmse(theta: np.ndarray, d: DriveRegressors) -> float:
     """NRMSE of the body accelerations simulated from the hub motion (after the start)."""
     skip = int(round(SETTLE_S * d.rate_hz))
     return _nrmse(simulate_body_accel(theta, d)[:, skip:], d.body_accel[:, skip:])
+
+
+def noise_weighting(d: DriveRegressors, theta: np.ndarray, sigma_mps2: Sequence[float],
+                    car_sigma_mps2: tuple[float, float], band_hz: tuple[float, float]
+                    ) -> Callable[[np.ndarray], np.ndarray]:
+    """Frequency weighting of the least squares: one over the square root of the noise's
+    share of the equation errors' spectrum (generalised least squares).
+
+    White accelerometer noise enters the suspension extensions integrated twice, so the
+    equation errors it makes grow as ``K / w^2`` towards low frequencies, where the
+    suspension hardly moves; weighted flat, the band's low end holds most of the noise
+    and little of the signal, and anything the noise compensation does not model there
+    (aliasing, non-white noise) biases the result. The weight is the same zero-phase gain
+    on every signal of the drive, so the equations still hold between them exactly.
+
+    Parameters
+    ----------
+    d : DriveRegressors
+    theta : ndarray
+        A first estimate (its scale does not matter).
+    sigma_mps2 : sequence of 8 float
+        Noise std of the hub and body channels [m/s^2].
+    car_sigma_mps2 : (float, float)
+        Noise std of the longitudinal and lateral car accelerations [m/s^2].
+    band_hz : (float, float)
+        The analysis band (the weight's maximum there is 1).
+
+    Returns
+    -------
+    callable
+        ``weight(f_hz) -> gain`` (0 at 0 Hz).
+    """
+    c = equation_error_transfer(d, theta)  # (3, 8, 3)
+    s2 = np.asarray(sigma_mps2, float) ** 2
+    th = np.nan_to_num(np.asarray(theta, float))
+    flat = np.array([0.0, (th[16] * car_sigma_mps2[0]) ** 2, (th[17] * car_sigma_mps2[1]) ** 2])
+
+    def psd(f: np.ndarray) -> np.ndarray:
+        jw = 2j * np.pi * f
+        t = c[..., 0, None] + c[..., 1, None] / jw + c[..., 2, None] / jw**2
+        return np.einsum("c,ecf->ef", s2, np.abs(t) ** 2) + flat[:, None]
+
+    fb = np.linspace(band_hz[0], band_hz[1], 256)
+    norm = np.maximum(psd(fb).mean(axis=1), 1e-300)
+    wmax = float(np.max(1.0 / np.sqrt((psd(fb) / norm[:, None]).sum(axis=0))))
+
+    def weight(f: np.ndarray) -> np.ndarray:
+        f = np.asarray(f, float)
+        out = np.zeros_like(f)
+        pos = f > 0
+        out[pos] = 1.0 / np.sqrt((psd(f[pos]) / norm[:, None]).sum(axis=0)) / wmax
+        return out
+
+    return weight
+
+
+def band_edges_hz(band_hz: tuple[float, float], n_bands: int) -> np.ndarray:
+    """Edges of the hub-noise bands: 0, ``n_bands - 1`` geometric steps between the band's
+    edges, inf (the first and last take the band-pass skirts)."""
+    lo, hi = band_hz
+    inner = lo * (hi / lo) ** (np.arange(1, n_bands) / n_bands)
+    return np.concatenate([[0.0], inner, [np.inf]])
+
+
+def drive_noise(rec: VehicleRecording, d: DriveRegressors, cfg: VehicleIdentifyConfig,
+                weight: Callable[[np.ndarray], np.ndarray] | None, edges_hz: np.ndarray,
+                body_sigma_mps2: float, car_sigma_mps2: tuple[float, float],
+                correlation: Sequence[str] = (), pairs: bool = False) -> DriveNoise:
+    """The noise's expected share in the drive's Gram matrices, per band: body sensors and
+    car signals known, hub sensors per unit of each component of their covariance
+    (independent; ``correlation``: ``left_right``, ``front_rear``), starting as noisy as
+    the body's and independent. ``pairs``: also the products of different equations.
+    """
+    resp = filter_response(rec, cfg, weight, edges_hz)
+    body = [0.0] * 4 + [body_sigma_mps2] * 4
+    known = np.stack([noise_gram(d, body, r, car_sigma_mps2, r, pairs=pairs) for r in resp],
+                     axis=1)
+    units = [np.diag([1.0] * 4 + [0.0] * 4)]
+    channel_pairs = {"left_right": ((0, 1), (2, 3)), "front_rear": ((0, 2), (1, 3))}
+    for name in correlation:
+        u = np.zeros((8, 8))
+        for i, k in channel_pairs[name]:
+            u[i, k] = u[k, i] = 1.0
+        units.append(u)
+    hub = np.stack([np.stack([noise_gram(d, [], r, channel_cov=u, pairs=pairs) for r in resp],
+                             axis=1) for u in units])
+    s2 = np.zeros((len(units), len(resp)))
+    s2[0] = body_sigma_mps2**2
+    return DriveNoise(known, hub, s2)
+
+
+def _compensated_fit(recs: Sequence[VehicleRecording], drives: Sequence[DriveRegressors],
+                     fitted: np.ndarray, block: int, cfg: VehicleIdentifyConfig
+                     ) -> tuple[WlsResult, WlsResult, dict[str, Any]]:
+    """Steps 3-4 of the method with the noise compensation: first fit (flat in frequency,
+    the hubs as noisy as the body), frequency weighting from it, the weighted fit with the
+    hub noise spectrum estimated; and the weighted fit without compensation."""
+    body_sigma = [body_noise_std_mps2(rec) for rec in recs]
+    car_sigma = [car_accel_noise_std_mps2(rec) for rec in recs]
+    edges = band_edges_hz(cfg.band_hz, cfg.hub_noise_bands)
+
+    def setup(ds: Sequence[DriveRegressors], wts: Sequence[Callable | None],
+              correlation: Sequence[str] = (), pairs: bool = False) -> list[DriveNoise]:
+        return [drive_noise(rec, d, cfg, wt, edges, bs, cs, correlation, pairs)
+                for rec, d, wt, bs, cs in zip(recs, ds, wts, body_sigma, car_sigma,
+                                                  strict=True)]
+
+    def grams_of(ds: Sequence[DriveRegressors]) -> tuple[list, list]:
+        g = [block_grams(d, block) for d in ds]
+        return [x for x, _ in g], [n for _, n in g]
+
+    weights: list[Callable[[np.ndarray], np.ndarray] | None] = [None] * len(recs)
+    grams, samples = grams_of(drives)
+    fit_drives = list(drives)
+    if cfg.noise_weighting:
+        first = compensated_least_squares(grams, samples, fitted, setup(drives, weights),
+                                          jackknife=False)
+        weights = [noise_weighting(d, first.theta, [bs] * 8, cs, cfg.band_hz)
+                   for d, bs, cs in zip(drives, body_sigma, car_sigma, strict=True)]
+        fit_drives = []
+        for rec, d, wt in zip(recs, drives, weights, strict=True):
+            dw = prepare_drive(rec, cfg, wt)
+            dw.added_mass_kg, dw.added_mass_at_m = d.added_mass_kg, d.added_mass_at_m
+            fit_drives.append(dw)
+        grams, samples = grams_of(fit_drives)
+    info: dict[str, Any] = {"body_noise_std_mps2": body_sigma,
+                            "car_accel_noise_std_mps2": car_sigma, "band_edges_hz": edges,
+                            "weights": weights}
+    if cfg.hub_noise != "spectrum":
+        w = compensated_least_squares(grams, samples, fitted, setup(fit_drives, weights),
+                                      bias_correction=cfg.jackknife_bias)
+    else:
+        # the hub noise spectrum estimated from the equation errors, band by band
+        band_grams = [np.stack([block_grams(part, block, True)[0]
+                                for part in band_split(d, edges)], axis=2)
+                      for d in fit_drives]
+        noise = setup(fit_drives, weights, cfg.hub_noise_correlation,
+                      cfg.hub_noise_cross_products)
+        w = compensated_least_squares(
+            grams, samples, fitted, noise,
+            [g if cfg.hub_noise_cross_products else g[:3] for g in band_grams],
+            cfg.hub_noise_iterations, bias_correction=cfg.jackknife_bias)
+        info["hub_noise_std_mps2"] = np.sqrt(w.hub_noise_s2[:, 0])
+        # the hub noise over the body sensors' as the equation errors see it: the bands
+        # weighted by what a unit of hub noise there puts into the errors
+        z = np.append(np.nan_to_num(w.theta), -1.0)
+        ratio = []
+        for k, nz in enumerate(noise):
+            q = np.einsum("p,ejpq,q->j", z, nz.hub_unit[0, :3], z)
+            ratio.append(float(np.sqrt(np.sum(w.hub_noise_s2[k, 0] * q) / max(
+                np.sum(body_sigma[k] ** 2 * q), 1e-300))))
+        info["hub_noise_ratio"] = ratio
+        if cfg.hub_noise_correlation:
+            info["hub_noise_correlation"] = w.hub_noise_s2[:, 1:] / np.maximum(
+                w.hub_noise_s2[:, :1], 1e-300)
+        if cfg.structure_doubt:
+            # the hub noise's structure (which hubs share it) is not fully identifiable from
+            # the three equations: the estimate with another structure (left-right and
+            # front-rear covariances, fitted to the equations' cross products too) is
+            # carried as a systematic uncertainty
+            alt_corr, alt_pairs = cfg.structure_alternative
+            alt = compensated_least_squares(
+                grams, samples, fitted, setup(fit_drives, weights, alt_corr, alt_pairs),
+                [g if alt_pairs else g[:3] for g in band_grams], cfg.hub_noise_iterations,
+                jackknife=False)
+            delta = cfg.structure_doubt * np.nan_to_num(alt.theta - w.theta)
+            w.cov = w.cov + np.outer(delta, delta)
+            info["structure_shift"] = float(alt.theta[0] / w.theta[0] - 1.0)
+    raw = compensated_least_squares(grams, samples, fitted, None, jackknife=False)
+    return w, raw, info
+
+
+def noise_warnings(info: dict[str, Any], w: WlsResult, hub_ratio: float = 1.5,
+                   dominance: float = 0.5) -> list[str]:
+    """What the noise says about the result, in words.
+
+    Parameters
+    ----------
+    info : dict
+        The noise information of :func:`_compensated_fit`.
+    w : WlsResult
+    hub_ratio : float
+        Hub noise over the body sensors' noise (``hub_noise_ratio``: rms, the bands
+        weighted by their share of the equation errors) beyond which it is reported.
+    dominance : float
+        Relative change of the mass by the compensation beyond which the result is said
+        to rest on it.
+    """
+    out = []
+    ratio = info.get("hub_noise_ratio")
+    if ratio is not None and max(ratio) > hub_ratio:
+        out.append(
+            f"the hub channels carry {max(ratio):.1f} x the body sensors' noise (as the "
+            "equations see it; up to "
+            f"{np.max(info['hub_noise_std_mps2']):.3g} m/s^2 white-equivalent in a band): "
+            "aliasing of the wheel's high-frequency acceleration (a DAQ with a gentle "
+            "anti-alias filter: record at 500 Hz or more, or with a steep filter), noisier "
+            "hub sensors, or a model that does not fit (check with fielddiag diagnose). It "
+            "is compensated as noise and its uncertainty is in the standard deviations; "
+            "if it is a model error, the result is biased")
+    shift = info.get("compensation_shift")
+    if shift is not None and abs(shift) > dominance:
+        out.append(
+            f"the sensor noise dominates the equations: its compensation changed the mass "
+            f"by {100 * shift:+.0f} %, so the result rests on the noise model; drive longer, "
+            "on a rougher road, or with a larger added mass")
+    rel = w.std[0] / abs(w.theta[0]) if w.theta[0] else math.inf
+    if rel > 0.03:
+        out.append(f"the sprung mass is uncertain by {100 * rel:.1f} % (1 std), more than "
+                   "the 3 % the method aims at; drive longer, on a rougher road, or with a "
+                   "larger added mass")
+    return out
 
 
 def identify_vehicle(
@@ -513,7 +812,7 @@ def identify_vehicle(
     d1 = prepare_drive(after, config)
     d1.added_mass_kg, d1.added_mass_at_m = added_mass_kg, at
     drives = [d0, d1]
-    a, b, group, tidx = regressors(drives)
+    a, _, _, _ = regressors(drives)
     fitted = np.ones(N_PARAMS, bool)
     # moment arms: only where the car accelerated (else the column is noise or zero)
     for col, sig in ((16, "a_long"), (17, "a_lat")):
@@ -523,27 +822,22 @@ def identify_vehicle(
     if np.any(col_norm[fitted] == 0):
         raise InsufficientDataError("the drives do not move the body or the suspensions; drive "
                                     "over a rough road")
-    noise: dict[int, tuple[np.ndarray, np.ndarray]] | None = None
-    if config.noise_compensation:
-        noise = {}
-        for k, (rec, d) in enumerate(((before, d0), (after, d1))):
-            sigma = body_noise_std_mps2(rec)  # the hubs' sensors taken as equally noisy
-            noise.update(noise_normal_equations(d, [sigma] * 8,
-                                                filter_response(rec, config), 3 * k,
-                                                car_accel_noise_std_mps2(rec)))
+    recs = (before, after)
     block = max(1, int(round(config.block_s * d0.rate_hz)))
-    w = weighted_least_squares(a, b, group, tidx, fitted, block, noise, config.jackknife_bias)
-    if noise:
-        # the noise compensation may itself be uncertain (it takes the hub sensors as noisy
-        # as the body's; in tests with known truth it removed 97-100 % of a 10 % bias, so
-        # the default doubt is 0): carry compensation_doubt x the scale change it made as a
-        # fully correlated scale uncertainty, plus a floor for the processing (bias without
-        # noise: 0.04-0.13 %, measured)
-        raw = weighted_least_squares(a, b, group, tidx, fitted, block, None)
+    if config.noise_compensation:
+        w, raw, noise_info = _compensated_fit(recs, drives, fitted, block, config)
+        # a floor for the processing (bias without noise: 0.04-0.13 %, measured), and
+        # optionally compensation_doubt x the scale change the compensation made, as a
+        # fully correlated scale uncertainty
         shift = w.theta[0] / raw.theta[0] - 1.0
         w.scale_std = float(np.hypot(config.compensation_doubt * shift, config.scale_floor))
+        noise_info["compensation_shift"] = float(shift)
     else:
+        grams = [block_grams(d, block) for d in drives]
+        w = compensated_least_squares([g for g, _ in grams], [n for _, n in grams], fitted,
+                                      bias_correction=config.jackknife_bias)
         w.scale_std = float(config.scale_floor)
+        noise_info = {}
     th = np.nan_to_num(w.theta)
     w.cov = w.cov + w.scale_std**2 * np.outer(th, th)
     dvs = []
@@ -582,10 +876,19 @@ def identify_vehicle(
         f"{config.filter_order}, sosfiltfilt), heave/pitch/roll from the 4 body sensors "
         "(least squares), 3 body equations linear in 18 parameters stacked over the drive "
         f"before and after adding {added_mass_kg:g} kg at ({at[0]:g}, {at[1]:g}) m, "
-        "weighted least squares (per-equation weights, sensor-noise bias compensated), "
-        f"a {100 * w.scale_std:.2f} % systematic scale uncertainty added, "
-        f"delete-a-block jackknife over {w.n_blocks} blocks of {config.block_s:g} s for the "
-        "covariance and the bias, "
+        "weighted least squares (per-equation weights"
+        + (", weighted in frequency by the noise's share of the equation errors"
+           if config.noise_weighting and config.noise_compensation else "")
+        + (", sensor-noise bias compensated: body sensors' noise from their redundancy, "
+           + ("the hubs' band by band from the equation errors"
+              if config.hub_noise == "spectrum" else "the hubs' taken as the body's")
+           if config.noise_compensation else "") + "), "
+        f"a {100 * w.scale_std:.2f} % systematic scale uncertainty added"
+        + (", and the difference to the estimate with another structure of the hub noise "
+           "(left-right and front-rear covariances)"
+           if "structure_shift" in noise_info else "") + ", "
+        f"delete-a-block jackknife over {w.n_blocks} blocks of {config.block_s:g} s "
+        "(the whole estimate repeated) for the covariance, "
         f"delta method for derived quantities{refined}; NRMSE = RMS error / RMS of the "
         "body accelerations simulated from the hub motion, after the first "
         f"{SETTLE_S:g} s")
@@ -599,4 +902,6 @@ def identify_vehicle(
                  for c in CORNERS},
         anti_roll_stiffness_front_n_per_m=est["arb_f"],
         anti_roll_stiffness_rear_n_per_m=est["arb_r"],
-        wls=w, cross_validation=cv, fit_nrmse=fit, method=method, refinement=refinement)
+        wls=w, cross_validation=cv, fit_nrmse=fit, method=method, refinement=refinement,
+        noise={k: v for k, v in noise_info.items() if k != "weights"},
+        warnings=noise_warnings(noise_info, w))

@@ -161,3 +161,71 @@ def test_body_simulated_from_the_hubs_matches_with_the_true_parameters(pair):
     oe = refine_output_error(res.wls, [d0, d1])
     assert oe.nrmse <= oe.nrmse_start * 1.001
     assert oe.wls.theta[0] == pytest.approx(car.sprung_mass_kg, rel=0.03)
+
+
+@pytest.fixture(scope="module")
+def drives_200hz():
+    """A random car (seed 22) on road B, 90 s before/after 120 kg, recorded at 200 Hz with
+    0.02 m/s^2 of sensor noise through the simulator's 4th-order Butterworth anti-alias
+    filter at 0.4 fs (gentle: the hubs' broadband acceleration folds into the band) and at
+    0.2 fs (steeper at the folding frequencies)."""
+    from fielddiag.sim.sensors import SensorModel
+
+    car = random_vehicle(22)
+    at = (0.6 * car.geometry.wheelbase_m, 0.2)
+    out = {}
+    for ratio in (0.4, 0.2):
+        kw = dict(duration_s=90.0, sample_rate_hz=200.0, road_class="B",
+                  sensor=SensorModel(output_rate_hz=200.0, noise_std_mps2=0.02,
+                                     anti_alias_cutoff_ratio=ratio))
+        out[ratio] = (simulate_vehicle(car, seed=45, **kw),
+                      simulate_vehicle(car, seed=46, added_mass_kg=120.0, added_mass_at_m=at,
+                                       **kw))
+    return car, at, out
+
+
+def test_200hz_recording_with_aliased_hub_acceleration(drives_200hz):
+    """Issue 18, 200 Hz: what the gentle anti-alias filter folds into the hub channels acts as
+    hub noise in the errors-in-variables compensation; taken equal to the body sensors' noise
+    it biased every parameter low (here -8.9 %, up to -21 % on the benchmark). Estimated
+    band by band from the equation errors, the result is within the issue's budget and its
+    standard deviations cover the error."""
+    from fielddiag.vehicle.identify import VehicleIdentifyConfig
+
+    car, at, runs = drives_200hz
+    t = car.truth()
+    before, after = runs[0.4]
+    old = identify_vehicle(before, after, 120.0, at, config=VehicleIdentifyConfig(
+        noise_weighting=False, hub_noise="body", hub_noise_correlation=(),
+        structure_doubt=0.0))
+    # the hubs taken as noisy as the body: attenuation bias, larger than 3 of its stds
+    assert old.sprung_mass_kg.value < 0.95 * t["sprung_mass_kg"]
+    res = identify_vehicle(before, after, 120.0, at)
+    # the aliased content: about twice the sensors' noise (white-equivalent, median of bands)
+    body = np.asarray(res.noise["body_noise_std_mps2"])
+    assert body == pytest.approx(0.02, rel=0.05)
+    assert np.median(res.noise["hub_noise_std_mps2"]) > 1.5 * 0.02
+    assert min(res.noise["hub_noise_ratio"]) > 1.6  # as the equations see it (2.0, 2.2)
+    assert any("record at 500 Hz" in w for w in res.warnings)
+    # the issue's budget; every error within 3 of its standard deviations
+    budget = {"sprung_mass_kg": 0.03, "pitch_inertia_kgm2": 0.10, "roll_inertia_kgm2": 0.10,
+              "anti_roll_stiffness_front_n_per_m": 0.20,
+              "anti_roll_stiffness_rear_n_per_m": 0.20}
+    for key, rel in budget.items():
+        est = getattr(res, key)
+        assert est.value == pytest.approx(t[key], rel=rel), key
+        assert abs(est.value - t[key]) < 3 * est.std, key
+    for key in ("cog_behind_front_axle_m", "cog_left_of_centre_m"):
+        est = getattr(res, key)
+        assert abs(est.value - t[key]) < min(0.02, 3 * est.std), key
+    for c, d in t["corners"].items():
+        for key, rel in (("stiffness_n_per_m", 0.05), ("damping_ns_per_m", 0.15)):
+            est = res.corners[c][key]
+            assert est.value == pytest.approx(d[key], rel=rel), (c, key)
+            assert abs(est.value - d[key]) < 3 * est.std, (c, key)
+    # a steeper filter folds less: the hub noise found is then close to the sensors' own
+    before, after = runs[0.2]
+    steep = identify_vehicle(before, after, 120.0, at)
+    assert np.median(steep.noise["hub_noise_std_mps2"]) < 1.3 * 0.02
+    assert steep.sprung_mass_kg.value == pytest.approx(t["sprung_mass_kg"], rel=0.03)
+    assert abs(steep.sprung_mass_kg.value - t["sprung_mass_kg"]) < 3 * steep.sprung_mass_kg.std
