@@ -54,6 +54,7 @@ from fielddiag.sim._common import G_MPS2
 from fielddiag.vehicle.identify import (
     VehicleIdentifyConfig,
     _derived,
+    analysis_samples,
     body_noise_std_mps2,
     car_accel_noise_std_mps2,
     filter_response,
@@ -234,9 +235,7 @@ def _raw_motion(rec: VehicleRecording, cfg: VehicleIdentifyConfig) -> _RawMotion
     r = proj @ x[4:] - x[:4]
     rd = proj @ v[4:] - v[:4]
     sos = signal.butter(cfg.filter_order, [lo, hi], "bandpass", fs=fs, output="sos")
-    step = max(1, int(fs // cfg.analysis_rate_hz))
-    trim = int(round((4.5 / lo if cfg.trim_s is None else cfg.trim_s) * fs))
-    return _RawMotion(r, rd, sos, cfg.passes, slice(trim, acc.shape[1] - trim, step))
+    return _RawMotion(r, rd, sos, cfg.passes, analysis_samples(acc.shape[1], fs, cfg))
 
 
 #: One compiled ForceModel per effect, and the columns of the terms of the running

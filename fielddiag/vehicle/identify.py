@@ -257,9 +257,8 @@ def prepare_drive(rec: VehicleRecording, cfg: VehicleIdentifyConfig = VehicleIde
     a0, v0, x0 = integrate_twice(acc, fs, 0.5 * lo, weight)
     c0 = integrate_twice(car, fs, 0.5 * lo, weight)[0]
     a3, v3, x1, car = (_bp(y, sos, cfg.passes) for y in (a0, v0, x0, c0))
-    step = max(1, int(fs // cfg.analysis_rate_hz))
-    trim = int(round((4.5 / lo if cfg.trim_s is None else cfg.trim_s) * fs))
-    keep = slice(trim, acc.shape[1] - trim, step)
+    keep = analysis_samples(acc.shape[1], fs, cfg)
+    step = keep.step
     a3, v3, x1, car = a3[:, keep], v3[:, keep], x1[:, keep], car[:, keep]
     g = rec.geometry
     pinv = np.linalg.pinv(g.sensor_matrix())
@@ -273,6 +272,35 @@ def prepare_drive(rec: VehicleRecording, cfg: VehicleIdentifyConfig = VehicleIde
         sensor_matrix=g.sensor_matrix(), added_mass_kg=float(rec.added_mass_kg),
         added_mass_at_m=(float(at[0]), float(at[1])), rate_hz=fs / step,
         wheel_disp=x1[:4], wheel_vel=v3[:4])
+
+
+def analysis_samples(n_samples: int, sample_rate_hz: float, cfg: VehicleIdentifyConfig
+                     ) -> slice:
+    """The samples the equations use: the filter's settling time trimmed at both ends,
+    every ``step``-th sample for about ``cfg.analysis_rate_hz``.
+
+    The step is the whole number of samples per analysis sample, rounded when the rate is
+    within 1 % of a multiple (a session's rate from its time stamps, 499.9998 Hz, is a
+    500 Hz recording: step 5, not 4).
+
+    Parameters
+    ----------
+    n_samples : int
+        Samples of the drive.
+    sample_rate_hz : float
+        Its rate [Hz].
+    cfg : VehicleIdentifyConfig
+        Band (its low edge sets the trim), trim and analysis rate.
+
+    Returns
+    -------
+    slice
+    """
+    ratio = float(sample_rate_hz) / cfg.analysis_rate_hz
+    step = max(1, int(math.floor(ratio + 0.01 * ratio)))
+    lo = cfg.band_hz[0]
+    trim = int(round((4.5 / lo if cfg.trim_s is None else cfg.trim_s) * sample_rate_hz))
+    return slice(trim, n_samples - trim, step)
 
 
 # --------------------------------------------------------------------------- results

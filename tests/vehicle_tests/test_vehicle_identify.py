@@ -229,3 +229,18 @@ def test_200hz_recording_with_aliased_hub_acceleration(drives_200hz):
     assert np.median(steep.noise["hub_noise_std_mps2"]) < 1.3 * 0.02
     assert steep.sprung_mass_kg.value == pytest.approx(t["sprung_mass_kg"], rel=0.03)
     assert abs(steep.sprung_mass_kg.value - t["sprung_mass_kg"]) < 3 * steep.sprung_mass_kg.std
+
+
+def test_analysis_step_rounds_a_rate_read_off_time_stamps():
+    from fielddiag.vehicle.identify import VehicleIdentifyConfig, analysis_samples
+
+    cfg = VehicleIdentifyConfig()  # 100 Hz analysis rate, band from 0.5 Hz
+    # a 500 Hz session whose rate from time stamps is a hair low: still every 5th sample
+    assert analysis_samples(90_000, 499.9998, cfg).step == 5
+    assert analysis_samples(90_000, 500.0, cfg).step == 5
+    # a rate between multiples keeps the floor (at least the analysis rate)
+    assert analysis_samples(90_000, 480.0, cfg).step == 4
+    assert analysis_samples(90_000, 150.0, cfg).step == 1
+    # the band-pass settles for 4.5 / 0.5 Hz = 9 s at each end
+    keep = analysis_samples(90_000, 500.0, cfg)
+    assert (keep.start, keep.stop) == (4500, 85_500)
