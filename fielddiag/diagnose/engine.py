@@ -929,9 +929,14 @@ def _unexplained(
     fit: _Fit, prepared: Sequence[_Prepared], coupling: bool, baseline: _Fit | None = None,
     say: Callable[[str], None] = lambda _m: None, known: Sequence[str] = EFFECT_LIBRARY,
     exclude: Callable[[Drive, np.ndarray], np.ndarray] | None = None,
+    reason: str | None = None,
 ) -> tuple[dict | None, DepartureMap]:
     """Force left that depends on (r, rdot) but that the chosen model does not describe
-    (judged on held-out samples outside ``exclude``: what a data problem corrupts)."""
+    (judged on held-out samples outside ``exclude``: what a data problem corrupts).
+
+    With ``reason`` (other evidence that the model misses physics: the linear model
+    cannot describe the pair with one sprung mass) the finding is made whatever the
+    held-out structure, its shape modelled all the same."""
     r, v, dep, is_val, segments = _departure(fit, prepared, coupling, exclude)
     full_map = departure_map(r, v, dep, bins=12)
     # the decision: does the departure map of the fit part predict the held-out residual?
@@ -952,7 +957,8 @@ def _unexplained(
             f"{100 * share:.1f} % of the linear model's misfit")
     else:  # the map of the fitted part predicts the held-out residual no better than zero
         say("  structure left in the residual: none found")
-    if t < 4.0 or gain < 0.08 or share < UNEXPLAINED_MIN_SHARE_OF_LINEAR_MISFIT:
+    if reason is None and (t < 4.0 or gain < 0.08
+                           or share < UNEXPLAINED_MIN_SHARE_OF_LINEAR_MISFIT):
         return None, full_map
     reg = dmap.region()
     names = ", ".join(EFFECTS[n].description for n in known if n in EFFECTS)
@@ -965,6 +971,24 @@ def _unexplained(
                                 "linear_damper.suspension_damping_ns_per_m"))
     unit = "N" if "body_mass_kg" in vals else "N/kg"
     words = "; ".join(shape.description)
+    if reason is not None:
+        return {
+            "effect": "unexplained",
+            "confidence": float(min(1.0, max(0.5, 2.0 * gain))),
+            "parameters": {},
+            "where": {"region": reg, "between_drives": True},
+            "shape_description": shape.description,
+            "model": {**shape.to_dict(), "force_unit": unit},
+            "held_out_gain": shape.held_out_gain,
+            "explanation": (
+                f"{reason[0].upper()}{reason[1:]}. None of the known effects ({names}) "
+                "explains it: something in the suspension acts differently with the added "
+                "mass on (the car sits lower on its travel: a spring or damper whose "
+                f"behaviour changes along the travel). Shape of the force left: {words}. A "
+                f"smooth model of that shape is attached (it predicts "
+                f"{100 * shape.held_out_gain:.0f} % of the force left on held-out data)"
+            ),
+        }, full_map
     return {
         "effect": "unexplained",
         "confidence": float(min(1.0, 2.0 * gain)),
@@ -1323,6 +1347,13 @@ def diagnose_drives(
             fits.append(other)
     say("looking for structure no effect explains")
     unexplained, _ = _unexplained(chosen, chosen.prepared, coupling, base, say, known=tried)
+    if (unexplained is None and hopeless and not chosen.physics
+            and (chosen.data is None or _linear_hopeless(chosen, mass_bounds))):
+        # one linear car cannot describe both drives and no effect of the library does:
+        # that is missing physics, not an adequate model
+        say("  the linear model cannot describe the pair and no effect explains it")
+        unexplained, _ = _unexplained(chosen, chosen.prepared, coupling, base, say,
+                                      known=tried, reason=hopeless.split(" (")[0])
     if unexplained is not None and any(w.kind == "clipping" for w in warnings):
         # clipping competes: is the structure still there away from the clipped readings?
         near = _near_clipping(chosen.runs, clipped)
