@@ -249,9 +249,53 @@ def summary(rows: list[dict]) -> list[str]:
     ]
 
 
+#: Issue 17's families: hysteresis (Dahl, Bouc-Wen), the digressive damper, quadratic
+#: damping, the rubber top mount.
+NEW_FAMILIES = ("hysteretic_spring", "bouc_wen", "digressive_damping", "quadratic_damping",
+                "series_top_mount")
+
+
+def summary_new_families(rows: list[dict]) -> list[str]:
+    """Issue 17's figures: the new families concealed, chosen on linear cars, outside."""
+    strong = [r for r in rows if (r["strength_ratio"] or 0) >= 2.0
+              and all(e != rs.UNEXPLAINED for e in r["expected"])]
+    new_any = [r for r in strong if set(r["effects"]) & set(NEW_FAMILIES)]
+    new_single = [r for r in new_any if len(r["effects"]) == 1]
+    errs = [e["rel_error"] for r in new_any for e in r["param_errors"]
+            if e["effect"] in NEW_FAMILIES]
+    single_errs = [e["rel_error"] for r in new_single for e in r["param_errors"]]
+    lin = [r for r in rows if r["family"] == "linear"]
+    chosen_on_linear = [r for r in lin if set(r["named"]) & set(NEW_FAMILIES)]
+    outside = [r for r in rows if rs.UNEXPLAINED in r["expected"]
+               and (r["strength_ratio"] or 0) >= 2.0]
+    shaped = [r for r in outside if r["top1"] and r.get("unexplained_described")
+              and (r.get("unexplained_held_out_gain") or 0.0) >= 0.30]
+    gains = [r.get("unexplained_held_out_gain") for r in outside
+             if r.get("unexplained_held_out_gain") is not None]
+    return [
+        "Against issue 17's figures:",
+        f"  top-1, a new family alone >= 2x floor (>= 90 %)  "
+        f"{_pct(sum(r['top1'] for r in new_single), len(new_single))}",
+        f"  top-1, any case with a new family >= 2x floor    "
+        f"{_pct(sum(r['top1'] for r in new_any), len(new_any))}",
+        f"  new-family parameters within 15 % (alone)        "
+        f"{_pct(sum(e <= 0.15 for e in single_errs), len(single_errs))}; median / worst "
+        f"{_median_worst(single_errs)}",
+        f"  new-family parameters within 15 % (all >= 2x)    "
+        f"{_pct(sum(e <= 0.15 for e in errs), len(errs))}; median / worst "
+        f"{_median_worst(errs)}",
+        f"  a new family named on a linear case              "
+        f"{_pct(len(chosen_on_linear), len(lin))}",
+        f"  outside the library >= 2x: 'unexplained' first with a shape description and "
+        f"held-out gain >= 30 %  {_pct(len(shaped), len(outside))}; held-out gain median / "
+        f"worst {_median_worst(gains)}",
+    ]
+
+
 def report(rows: list[dict], failed: list[dict]) -> list[str]:
     out = family_table(rows) + [""] + confusion(rows) + [""] + nuisance_table(rows) + [""]
-    out += ride_height_table(rows) + [""] + summary(rows)
+    out += ride_height_table(rows) + [""] + summary(rows) + [""]
+    out += summary_new_families(rows)
     ratios = [r["strength_ratio"] for r in rows if r["strength_ratio"] is not None]
     if ratios:
         out.append(f"  strength ratios measured: {min(ratios):.2f} - {max(ratios):.2f}, "

@@ -202,6 +202,7 @@ def score_case(case: Any, out: dict[str, Any], floor_nrmse: float | None,
             and rh in (None, truth_rh)
     else:
         right_rh = bool(top1)
+    unexpl = next((f for f in found if f.get("effect") == UNEXPLAINED), None)
     return {
         "seed": case.seed,
         "family": case.family,
@@ -230,4 +231,8 @@ def score_case(case: Any, out: dict[str, Any], floor_nrmse: float | None,
         "right_for_ride_height": right_rh,
         "rate_hz": case.rate_hz,
         "duration_s": case.duration_s,
+        # the shape model attached to an 'unexplained' finding (issue 17)
+        "unexplained_held_out_gain": None if unexpl is None else _finite(
+            unexpl.get("held_out_gain")),
+        "unexplained_described": bool(unexpl and unexpl.get("shape_description")),
     }
