@@ -50,7 +50,12 @@ from fielddiag.identify.terms import ForceModel, make_term, split_shape
 
 #: Effect terms tried by default, in the diagnosis library's names.
 RIG_EFFECTS = ("coulomb_friction", "cubic_stiffness", "bump_stop", "asymmetric_damping",
-               "dahl_friction")
+               "dahl_friction", "buildup_hysteresis")
+#: Parameters that are physical anywhere in their range, bounds included, and so never
+#: make a fit unphysical: a build-up in one direction only (the other at zero), one that
+#: never levels off (its travel at the upper bound), a release within any travel.
+FREE_FORM_PARAMS = ("compression_buildup_n_per_m", "extension_buildup_n_per_m",
+                    "buildup_travel_m", "release_ratio")
 #: The moving mass is kept when its force is at least this share of the force's spread.
 MIN_INERTIA_SHARE = 0.01
 #: Warm-up [s]: the internal states of a hysteresis start at rest, unknown to the data, so
@@ -419,6 +424,10 @@ def _start_values(model: ForceModel, data: RigData, linear: dict[str, float]) ->
             base.append(float(np.quantile(-data.displacement, 0.9)))
         elif spec.name == "yield_displacement_m":
             base.append(float(np.median(YIELD_STARTS)) * float(np.std(data.displacement)))
+        elif spec.name == "buildup_travel_m":
+            # the build-up levels off after about the stroke's span
+            base.append(float(np.clip(np.ptp(data.displacement), 1.1 * spec.lower,
+                                      0.5 * spec.upper)))
         else:
             base.append(spec.typical)
     starts = [np.array([linear.get("f0", 0.0), linear.get("m", 0.0), *base])]
@@ -696,6 +705,8 @@ def _at_bound(
         if key.split(".")[0] not in effects:
             continue
         v, s = z[2 + i], std[2 + i]
+        if spec.name in FREE_FORM_PARAMS:
+            continue
         if spec.name == "smoothing_velocity_mps":
             # a loosely determined shape parameter: only its upper end (friction turned
             # into a linear damper) is telling
@@ -1008,7 +1019,11 @@ def _select_among(effects: Sequence[str], baseline: CandidateFit, fit: RigData, 
         helps = {e: compare(baseline, c).beats(c.n_params - baseline.n_params)
                  for e, c in singles.items()}
         for pair in itertools.combinations(effects, 2):
-            if any(get_effect(e).n_states for e in pair) and not all(helps[e] for e in pair):
+            n_stateful = sum(bool(get_effect(e).n_states) for e in pair)
+            if n_stateful and not all(helps[e] for e in pair):
+                continue
+            if n_stateful > 1:
+                # two hysteresis models of the same loop (each has its friction state)
                 continue
             # started from the two single fits (a hysteresis' yield travel then needs no
             # screening)
@@ -1017,7 +1032,37 @@ def _select_among(effects: Sequence[str], baseline: CandidateFit, fit: RigData, 
                 start.update({k: v for k, v in singles[e].values.items()
                               if k.startswith(e + ".")})
             candidates.append(_candidate(pair, fit, val, start, fit_mass))
-    return _select_whitened(baseline, candidates, fit)
+    return _other_hysteresis(_select_whitened(baseline, candidates, fit))
+
+
+def _other_hysteresis(sel: Selection) -> Selection:
+    """The chosen model with its hysteresis swapped for another hysteresis model, where that
+    predicts the held-out data significantly better by a margin worth its extra parameters.
+
+    The selection ranks single effects first and then only pairs that contain the chosen
+    single one; two hysteresis models (Dahl friction, the build-up hysteresis) are
+    alternatives for the same loop, so the pair with the other one is compared here by the
+    same held-out rule (:meth:`~fielddiag.diagnose.selection.Comparison.beats`)."""
+    chosen = sel.chosen
+    if chosen is sel.baseline:
+        return sel
+    stateful = {e for e in chosen.effects if get_effect(e).n_states}
+    if len(stateful) != 1:
+        return sel
+    rest = set(chosen.effects) - stateful
+    best = chosen
+    for c, _ in sel.ranking:
+        swapped = set(c.effects) - rest
+        if (c is chosen or not c.physical or len(c.effects) != len(chosen.effects)
+                or not rest <= set(c.effects) or len(swapped) != 1
+                or swapped == stateful or not get_effect(swapped.pop()).n_states):
+            continue
+        if compare(best, c).beats(c.n_params - best.n_params):
+            best = c
+    if best is chosen:
+        return sel
+    return Selection(best, sel.baseline, compare(sel.baseline, best), sel.ranking,
+                     sel.rejected_unphysical)
 
 
 def _inertia_in(chosen: CandidateFit, fit: RigData, val: RigData) -> bool:
