@@ -55,7 +55,7 @@ RIG_EFFECTS = ("coulomb_friction", "cubic_stiffness", "bump_stop", "asymmetric_d
 #: make a fit unphysical: a build-up in one direction only (the other at zero), one that
 #: never levels off (its travel at the upper bound), a release within any travel.
 FREE_FORM_PARAMS = ("compression_buildup_n_per_m", "extension_buildup_n_per_m",
-                    "buildup_travel_m", "release_ratio")
+                    "buildup_travel_m", "release_displacement_m")
 #: The moving mass is kept when its force is at least this share of the force's spread.
 MIN_INERTIA_SHARE = 0.01
 #: Warm-up [s]: the internal states of a hysteresis start at rest, unknown to the data, so
@@ -422,8 +422,10 @@ def _start_values(model: ForceModel, data: RigData, linear: dict[str, float]) ->
             base.append(5.0 * linear.get("linear_spring.suspension_stiffness_n_per_m", 2e4))
         elif spec.name == "gap_m":
             base.append(float(np.quantile(-data.displacement, 0.9)))
-        elif spec.name == "yield_displacement_m":
-            base.append(float(np.median(YIELD_STARTS)) * float(np.std(data.displacement)))
+        elif spec.name in ("yield_displacement_m", "release_displacement_m"):
+            # a release (of a build-up) over about twice the pre-yield travel
+            share = float(np.median(YIELD_STARTS)) * float(np.std(data.displacement))
+            base.append(share * (2.0 if spec.name == "release_displacement_m" else 1.0))
         elif spec.name == "buildup_travel_m":
             # the build-up levels off after about the stroke's span
             base.append(float(np.clip(np.ptp(data.displacement), 1.1 * spec.lower,
@@ -436,11 +438,14 @@ def _start_values(model: ForceModel, data: RigData, linear: dict[str, float]) ->
             # a hysteresis' yield travel: anywhere from far below a sample's travel (a
             # sharp friction-like loop) to a good share of the stroke
             j = 2 + model.index(key)
+            rel = key.replace("yield_displacement_m", "release_displacement_m")
             grid = []
             for st in starts:
                 for q in YIELD_STARTS:
                     st = st.copy()
                     st[j] = q * float(np.std(data.displacement))
+                    if rel in model.param_keys:
+                        st[2 + model.index(rel)] = 2.0 * st[j]
                     grid.append(st)
             starts = grid
     if "bump_stop.gap_m" in model.param_keys:
@@ -494,7 +499,7 @@ def fit_rig_model(
     lower = np.concatenate(([-np.inf, 0.0], model.lower))
     upper = np.concatenate(([np.inf, np.inf], model.upper))
     for key in model.param_keys:
-        if key.endswith(".yield_displacement_m"):
+        if key.endswith((".yield_displacement_m", ".release_displacement_m")):
             # a pre-yield travel far below the travel of one sample is not resolved by
             # the data (the loop is then a step), and would only cost integration steps
             j = 2 + model.index(key)

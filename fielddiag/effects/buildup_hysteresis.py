@@ -16,11 +16,11 @@ from fielddiag.effects.base import INF, RATE_BOUND_MPS, Effect, ParamSpec, regis
 def _buildup_hysteresis(r, rd, x2, z, p, c, dp, dz):  # pragma: no cover - compiled
     # z[0] = w in [-1, 1] (Dahl friction state): dw/dt = (rdot - |rdot| w) / x_y
     # z[1] = a >= 0: travel built up while compressing (rdot < 0), saturating at h_y,
-    #        released over x_r = release_ratio * x_y of extension
+    #        released over x_r of extension
     # z[2] = b >= 0: the same while extending (rdot > 0)
     w, a, b = z[0], z[1], z[2]
     x_y = p[1]
-    x_r = p[2] * p[1]
+    x_r = p[2]
     h_y = p[5]
     ard = abs(rd)
     dz[0] = (rd - ard * w) / x_y
@@ -31,7 +31,7 @@ def _buildup_hysteresis(r, rd, x2, z, p, c, dp, dz):  # pragma: no cover - compi
         dz[1] = -ard * a / x_r
         dz[2] = ard * (1.0 - b / h_y)
     dp[0] = -w
-    dp[1] = 0.0  # x_y, release ratio and h_y act through the states (forward differences)
+    dp[1] = 0.0  # x_y, x_r and h_y act through the states (forward differences)
     dp[2] = 0.0
     dp[3] = a
     dp[4] = -b
@@ -54,7 +54,7 @@ class BuildupHysteresis(Effect):
 
     so that in compression the resisting force grows by ``k_c`` per metre of travel since
     the reversal (saturating after about ``h_y``), in extension by ``k_e``, and both fall
-    back within ``x_r = release_ratio * x_y`` once the motion turns. Unlike a spring, the
+    back within ``x_r`` once the motion turns. Unlike a spring, the
     force depends on where the stroke turned, not on the absolute position: a long stroke
     ends with a larger loop than a short one at the same place and speed. This is what the
     magneto-rheological damper of ``shared/data/mr_damper`` shows in compression (its loop
@@ -79,10 +79,9 @@ class BuildupHysteresis(Effect):
         ParamSpec("yield_displacement_m", "m", 0.0, INF, 1e-4, False, "pre-yield travel",
                   "drive over small ripples (many small reversals)",
                   valid_low=0.0, valid_strict=True, default=1e-4),
-        ParamSpec("release_ratio", "1", 0.1, 100.0, 2.0, False,
-                  "release travel / pre-yield travel",
+        ParamSpec("release_displacement_m", "m", 1e-5, 0.05, 2e-4, False, "release travel",
                   "drive over small ripples (many small reversals)", shape=True,
-                  valid_low=0.0, valid_strict=True, default=2.0),
+                  valid_low=0.0, valid_strict=True, default=2e-4),
         ParamSpec("compression_buildup_n_per_m", "N/m", 0.0, INF, 0.0, True,
                   "build-up in compression", "drive strokes of different lengths",
                   default=0.0),
@@ -128,8 +127,8 @@ class BuildupHysteresis(Effect):
         (float, float, float)
             ``(|F_f| / x_y + |k_c| + |k_e|, 0, RATE_BOUND_MPS / min(x_y, x_r, h_y))``.
         """
-        f, x_y, ratio, k_c, k_e, h_y = (abs(float(v)) for v in values)
-        shortest = min(x_y, ratio * x_y, h_y)
+        f, x_y, x_r, k_c, k_e, h_y = (abs(float(v)) for v in values)
+        shortest = min(x_y, x_r, h_y)
         return f / x_y + k_c + k_e, 0.0, RATE_BOUND_MPS / shortest
 
     def start_values(self, r_m, start):
