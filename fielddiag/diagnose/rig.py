@@ -51,6 +51,10 @@ from fielddiag.identify.terms import ForceModel, make_term, split_shape
 #: Effect terms tried by default, in the diagnosis library's names.
 RIG_EFFECTS = ("coulomb_friction", "cubic_stiffness", "bump_stop", "asymmetric_damping",
                "dahl_friction", "buildup_hysteresis")
+#: Effects that refine another (the build-up hysteresis is Dahl friction plus a build-up
+#: along the stroke): tried only where that one alone predicts the held-out data
+#: significantly better than the linear model, and started from its fit.
+REFINES = {"buildup_hysteresis": "dahl_friction"}
 #: Parameters that are physical anywhere in their range, bounds included, and so never
 #: make a fit unphysical: a build-up in one direction only (the other at zero), one that
 #: never levels off (its travel at the upper bound), a release within any travel.
@@ -1018,11 +1022,27 @@ def _select_among(effects: Sequence[str], baseline: CandidateFit, fit: RigData, 
     the linear model."""
     linear = {k: v for k, v in baseline.values.items()}
     linear["f0"], linear["m"] = baseline.values["preload_n"], baseline.values["moving_mass_kg"]
-    singles = {e: _candidate((e,), fit, val, linear, fit_mass) for e in effects}
+    singles: dict[str, CandidateFit] = {}
+    for e in sorted(effects, key=lambda e: e in REFINES):
+        base = REFINES.get(e)
+        if base is None:
+            singles[e] = _candidate((e,), fit, val, linear, fit_mass)
+            continue
+        if base not in singles or not _helps(baseline, singles[base]):
+            continue
+        # started from the refined effect's fit: its friction and pre-yield travel, a
+        # release over twice that travel
+        start = dict(linear)
+        for k, v in singles[base].values.items():
+            if k.startswith(base + "."):
+                start[e + k[len(base):]] = v
+        if f"{e}.yield_displacement_m" in start:
+            start[f"{e}.release_displacement_m"] = 2.0 * start[f"{e}.yield_displacement_m"]
+        singles[e] = _candidate((e,), fit, val, start, fit_mass)
+    effects = [e for e in effects if e in singles]
     candidates = list(singles.values())
     if max_pair:
-        helps = {e: compare(baseline, c).beats(c.n_params - baseline.n_params)
-                 for e, c in singles.items()}
+        helps = {e: _helps(baseline, c) for e, c in singles.items()}
         for pair in itertools.combinations(effects, 2):
             n_stateful = sum(bool(get_effect(e).n_states) for e in pair)
             if n_stateful and not all(helps[e] for e in pair):
@@ -1038,6 +1058,11 @@ def _select_among(effects: Sequence[str], baseline: CandidateFit, fit: RigData, 
                               if k.startswith(e + ".")})
             candidates.append(_candidate(pair, fit, val, start, fit_mass))
     return _other_hysteresis(_select_whitened(baseline, candidates, fit))
+
+
+def _helps(baseline: CandidateFit, cand: CandidateFit) -> bool:
+    """Does ``cand`` predict the held-out data significantly better than the linear model?"""
+    return compare(baseline, cand).beats(cand.n_params - baseline.n_params)
 
 
 def _other_hysteresis(sel: Selection) -> Selection:

@@ -102,10 +102,11 @@ def test_linear_rig_gives_no_hysteresis(seed):
     out = diagnose_rig(_sim((), seed=seed, stiffness_n_per_m=25e3,
                             damping_ns_per_m=1200.0)).to_dict()
     assert out["findings"] == [] and out["verdict"] == "adequate"
-    # the hysteresis candidates were fitted and lost: no better on held-out data than linear
-    for name in ("dahl_friction", "buildup_hysteresis"):
-        cand = next(c for c in out["candidates"] if c["effects"] == [name])
-        assert cand["nrmse_validation"] >= 0.98 * out["baseline"]["nrmse_validation"]
+    # the Dahl candidate was fitted and lost: no better on held-out data than linear; so
+    # the build-up hysteresis, which refines it, was not tried
+    dahl = next(c for c in out["candidates"] if c["effects"] == ["dahl_friction"])
+    assert dahl["nrmse_validation"] >= 0.98 * out["baseline"]["nrmse_validation"]
+    assert not any("buildup_hysteresis" in c["effects"] for c in out["candidates"])
 
 
 def test_coulomb_friction_stays_coulomb():
