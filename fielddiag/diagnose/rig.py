@@ -52,8 +52,8 @@ from fielddiag.identify.terms import ForceModel, make_term, split_shape
 RIG_EFFECTS = ("coulomb_friction", "cubic_stiffness", "bump_stop", "asymmetric_damping",
                "dahl_friction", "buildup_hysteresis")
 #: Effects that refine another (the build-up hysteresis is Dahl friction plus a build-up
-#: along the stroke): tried only where that one alone predicts the held-out data
-#: significantly better than the linear model, and started from its fit.
+#: along the stroke): where that one is a candidate too, tried only where it alone predicts
+#: the held-out data significantly better than the linear model, and started from its fit.
 REFINES = {"buildup_hysteresis": "dahl_friction"}
 #: Parameters that are physical anywhere in their range, bounds included, and so never
 #: make a fit unphysical: a build-up in one direction only (the other at zero), one that
@@ -1025,10 +1025,10 @@ def _select_among(effects: Sequence[str], baseline: CandidateFit, fit: RigData, 
     singles: dict[str, CandidateFit] = {}
     for e in sorted(effects, key=lambda e: e in REFINES):
         base = REFINES.get(e)
-        if base is None:
+        if base is None or base not in effects:
             singles[e] = _candidate((e,), fit, val, linear, fit_mass)
             continue
-        if base not in singles or not _helps(baseline, singles[base]):
+        if not _helps(baseline, singles[base]):
             continue
         # started from the refined effect's fit: its friction and pre-yield travel, a
         # release over twice that travel
