@@ -361,6 +361,39 @@ def run_mr(forced: bool = False) -> None:
           f"max {max(r['secs'] for r in rows):.1f} s")
 
 
+def run_mr_evidence() -> None:
+    """Does the MR damper's loop depend on where the stroke turned? Per naming group, the
+    loop height (force on the extending branch minus force on the compressing branch) at
+    4-6 mm of displacement, against the stroke and the speed there; a least-squares line
+    ``height = h0 + a stroke + b speed`` over the group's records separates the two. A
+    spring, or a friction level that depends on the position, gives the same height at the
+    same place and speed whatever the stroke (``a`` = 0); a force that builds up with the
+    travel since the reversal gives ``a`` > 0."""
+    files = sorted(MR_DIR.glob("*.csv"))
+    print("\n== MR damper: loop height at 4-6 mm against stroke and speed ==")
+    by_group: dict[str, list[tuple[str, float, float, float]]] = {}
+    for p in files:
+        d = load_mr(p)
+        x_mm = 1e3 * d.displacement
+        at = (x_mm > 4.0) & (x_mm < 6.0)
+        up, down = at & (d.velocity > 0), at & (d.velocity < 0)
+        if up.sum() < 5 or down.sum() < 5:
+            continue
+        height = float(np.median(d.force[up]) - np.median(d.force[down]))
+        speed = 1e3 * float(np.median(d.velocity[up]) - np.median(d.velocity[down])) / 2
+        by_group.setdefault(_naming_group(p.stem), []).append(
+            (p.stem, float(np.ptp(x_mm)), speed, height))
+    for g, rows in sorted(by_group.items()):
+        rows.sort(key=lambda r: r[1])
+        st, sp, h = (np.array([r[i] for r in rows]) for i in (1, 2, 3))
+        a = np.column_stack([np.ones_like(st), st, sp])
+        coef, *_ = np.linalg.lstsq(a, h, rcond=None)
+        print(f"  group {g:5} ({len(rows)} records): height = {coef[0]:.0f} N + {coef[1]:.2f} N "
+              f"per mm of stroke + {coef[2]:.2f} N per mm/s of speed")
+        print("    " + ", ".join(f"{n} {s_:.0f} mm {v:.0f} mm/s {hh:.0f} N"
+                                  for n, s_, v, hh in rows))
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seed", type=int, default=None, help="repeat a run (default: fresh)")
@@ -368,6 +401,8 @@ def main(argv=None) -> int:
     ap.add_argument("--per-ratio", type=int, default=2, help="cases per fs/f_res ratio")
     ap.add_argument("--skip-mr", action="store_true")
     ap.add_argument("--only-mr", action="store_true")
+    ap.add_argument("--evidence", action="store_true",
+                    help="MR records: loop height against stroke and speed, then stop")
     ap.add_argument("--forced", action="store_true",
                     help="MR records: also score coulomb + build-up hysteresis on every record")
     a = ap.parse_args(argv)
@@ -378,7 +413,9 @@ def main(argv=None) -> int:
     if not a.only_mr:
         run_duffing(rng, a.cases)
         run_ratios(rng, a.per_ratio)
-    if not a.skip_mr:
+    if a.evidence:
+        run_mr_evidence()
+    elif not a.skip_mr:
         run_mr(a.forced)
     print(f"\ntotal {time.perf_counter() - t0:.0f} s")
     return 0

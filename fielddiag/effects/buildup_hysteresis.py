@@ -54,13 +54,14 @@ class BuildupHysteresis(Effect):
 
     so that in compression the resisting force grows by ``k_c`` per metre of travel since
     the reversal (saturating after about ``h_y``), in extension by ``k_e``, and both fall
-    back within ``x_r`` once the motion turns. Unlike a spring, the
-    force depends on where the stroke turned, not on the absolute position: a long stroke
-    ends with a larger loop than a short one at the same place and speed. This is what the
-    magneto-rheological damper of ``shared/data/mr_damper`` shows in compression (its loop
-    grows by about 2 N per mm of stroke, which a friction level that depends on the
-    absolute position cannot reproduce across strokes); a chamber pressurised through
-    a compliance during one direction of travel and vented at reversal behaves so.
+    back within ``x_r`` once the motion turns. Unlike a spring, the force depends on where
+    the stroke turned, not on the absolute position: a long stroke ends with a larger loop
+    than a short one at the same place and speed. This is what the magneto-rheological
+    damper of ``shared/data/mr_damper`` shows in compression (its loop grows by about 2 N
+    per mm of stroke, which a friction level that depends on the absolute position cannot
+    reproduce across strokes). A chamber pressurised through a compliance during one
+    direction of travel and vented at the reversal would behave so (a guess at the
+    mechanism; the data show only the force).
 
     It is a rig effect (``diagnosable`` False): six parameters and three states for a
     phenomenon of dampers on a test rig; the quarter-car diagnosis has the plain Dahl
