@@ -19,24 +19,28 @@ Method
 * The 610 Hz / 60 Hz cases drive 0.1-2 f_res (to about 120 Hz, the simulator's default;
   not capped).
 * MR damper: each of the 52 records of ``shared/data/mr_damper`` (mm converted to m) is
-  diagnosed twice: "before" with the memoryless candidates rig mode had before issue 17
-  (friction, cubic, bump stop, asymmetric damping), "after" with today's candidates
-  (:data:`fielddiag.diagnose.rig.RIG_EFFECTS`, with Dahl friction: hysteresis). Within:
-  the held-out NRMSE on the record's last 30 %. Cross: the chosen model (fitted on the
-  first 70 %) scored on the next record of the same coil-voltage family recorded at the
-  same sample rate (sorted names, cyclic), with the load-cell offset re-estimated there
-  (it differs between files: +100 N in most, -15..0 N in ``exp*``, ``ensaio15/16``); the
-  internal states start at rest and warm up on the first 0.5 s of motion, not scored.
-  Also printed: the next record of the family at any rate, and all ordered pairs. The
-  records at 100 Hz (``ensaioN.1``, ``*a``) and at 50 Hz (``ensaioN``) of the low family
-  differ in force level at the same stroke and speed (force std about 91 vs 77 N, friction
-  about 66 vs 56 N): another operating point, which no model of one record predicts.
-  NRMSE = residual std / force std, both through the validation record's band.
-  Parameter spread per family: median, inter-quartile range and range over the records.
+  diagnosed twice: "before" with the candidates rig mode had before the build-up
+  hysteresis (friction, cubic, bump stop, asymmetric damping, Dahl friction), "after" with
+  today's (:data:`fielddiag.diagnose.rig.RIG_EFFECTS`). Within: the held-out NRMSE on the
+  record's last 30 %. Cross: the chosen model (fitted on the first 70 %) scored on all of
+  another record with the load-cell offset re-estimated there (it differs between files:
+  +100 N in most, -15..0 N in ``exp*``, ``ensaio15/16``); the internal states start at
+  rest and warm up on the first 0.5 s of motion, not scored. Three pairings: (a) every
+  ordered pair of the README's two coil-voltage families; (b) every ordered pair of a
+  naming group (``ensaioN`` with ``ensaioNa`` and ``exp*``; ``ensaioN.1``; ``ensaioN.2``;
+  ``ensaioN.2.2``), whose force levels differ systematically at the same stroke and speed
+  (other coil currents or days); (c) the next record of the family at the same sample
+  rate (sorted names, cyclic). "Scaled": the same with one force scale re-estimated on
+  the other record as well (what a change of coil current does, to first order): a check
+  of the model's form across operating points, not a prediction. NRMSE = residual std /
+  force std, both through the validation record's band. Parameter spread per family and
+  per naming group: median, inter-quartile range and range over the records.
 
 Seeds are fresh every run (printed); ``--seed`` repeats a run. Nothing is tuned on them.
 
-Usage: ``python benchmarks/bench_rig.py [--seed S] [--cases N] [--skip-mr]``
+Usage: ``python benchmarks/bench_rig.py [--seed S] [--cases N] [--skip-mr | --only-mr]
+[--forced]`` (``--forced``: also score Coulomb friction + build-up hysteresis on every MR
+record, whatever the selection chose: a diagnostic of the selection)
 """
 
 from __future__ import annotations
@@ -172,8 +176,19 @@ def run_ratios(rng, per_ratio: int) -> None:
 
 
 def _family(name: str) -> str:
-    stem = name[:-4]
+    """The README's coil-voltage family of a record (file name or stem)."""
+    stem = name[:-4] if name.endswith(".csv") else name
     return "high" if stem.endswith(".2") or stem.endswith(".2.2") else "low"
+
+
+def _naming_group(stem: str) -> str:
+    """The naming group of a record: ``N``, ``N.1``, ``N.2`` or ``N.2.2`` (plain names,
+    ``ensaioNa`` and ``exp*`` are ``N``). The groups sit at systematically different force
+    levels at the same stroke and speed (other coil currents or days)."""
+    for tail in (".2.2", ".2", ".1"):
+        if stem.endswith(tail):
+            return "N" + tail
+    return "N"
 
 
 def load_mr(path: Path):
@@ -186,10 +201,25 @@ def load_mr(path: Path):
     return rig_data_from_displacement(t, f, x, fs)
 
 
-#: Rig mode's candidates before hysteresis was modelled (memoryless effects only).
-BEFORE_EFFECTS = ("coulomb_friction", "cubic_stiffness", "bump_stop", "asymmetric_damping")
-#: Effects with an internal state (hysteresis).
-HYSTERESIS = {"hysteretic_spring", "dahl_friction", "bouc_wen"}
+#: Rig mode's candidates before the build-up hysteresis (Dahl friction the only hysteresis).
+BEFORE_EFFECTS = tuple(e for e in rigmod.RIG_EFFECTS if e != "buildup_hysteresis")
+#: Effects that are hysteresis (internal states with a rate-independent loop).
+HYSTERESIS = {"hysteretic_spring", "dahl_friction", "bouc_wen", "buildup_hysteresis"}
+
+
+def scaled_cross_nrmse(cand, other) -> float:
+    """NRMSE of a fitted candidate on another record with the load-cell offset AND one
+    force scale re-estimated there (the whole model force times ``s``: what a change of
+    coil current does to an MR damper, to first order). Not a prediction: a check of the
+    model's form across operating points."""
+    model, z = cand.extra["model"], np.array(cand.extra["z"], float)
+    z[0] = 0.0
+    res, _ = rigmod._residual_and_jac(model, z, other, state_jacobian=False)
+    pred = other.force - res
+    a = np.column_stack([np.ones_like(pred), pred])
+    coef, *_ = np.linalg.lstsq(a, other.force, rcond=None)
+    r = other.force - a @ coef
+    return float(r.std() / other.force.std())
 
 
 def _spread(vals) -> str:
@@ -197,117 +227,171 @@ def _spread(vals) -> str:
     if not v.size:
         return "-"
     q1, med, q3 = np.percentile(v, [25, 50, 75])
-    return (f"median {med:10.4g}  IQR {q1:10.4g} .. {q3:10.4g}  (IQR/median "
-            f"{100 * (q3 - q1) / abs(med):5.1f} %)  range {v.min():.4g} .. {v.max():.4g}  "
-            f"n={v.size}")
+    rel = f"{100 * (q3 - q1) / abs(med):5.1f} %" if med else "    - "
+    return (f"median {med:10.4g}  IQR {q1:10.4g} .. {q3:10.4g}  (IQR/median {rel})  "
+            f"range {v.min():.4g} .. {v.max():.4g}  n={v.size}")
 
 
-def run_mr() -> None:
+def _med(vals) -> str:
+    v = np.asarray(list(vals), float)
+    if not v.size:
+        return "-"
+    return (f"{np.median(v):.4f} (IQR {np.percentile(v, 25):.4f}-{np.percentile(v, 75):.4f}, "
+            f"n={v.size})")
+
+
+#: ``--forced``: the model the MR records favour across strokes, scored on every record
+#: whatever the selection chose (a diagnostic of the selection, not what rig mode reports).
+FORCED = ("coulomb_friction", "buildup_hysteresis")
+
+
+def run_mr(forced: bool = False) -> None:
     files = sorted(MR_DIR.glob("*.csv"))
     print(f"\n== real MR damper: {len(files)} records in {MR_DIR} ==")
     if not files:
         print("no records found")
         return
-    print("before: rig mode with the memoryless candidates", BEFORE_EFFECTS)
+    print("before: rig mode with", BEFORE_EFFECTS)
     print("after:  rig mode with", rigmod.RIG_EFFECTS)
     print("within: held-out NRMSE on the record's last 30 % (fitted on the first 70 %)")
-    print("cross:  the model fitted (first 70 %) on a record, scored on all of the NEXT record of "
-          "its family recorded at the\n        same sample rate (sorted names, cyclic; a record "
-          "alone at its rate: the next of its family); load-cell\n        offset re-estimated "
-          "there; the states start at rest and warm up on the first 0.5 s of motion, not scored")
-    print("cross any rate: the same on the next record of the family regardless of its rate")
-    print("all-pairs: the same on every other record of the family (and rate), median over "
-          "ordered pairs")
-    fams: dict[str, list[Path]] = {}
-    for p in files:
-        fams.setdefault(_family(p.name), []).append(p)
-    data = {p: load_mr(p) for p in files}
-    rate = {p: round(data[p].sample_rate_hz) for p in files}
+    print("cross:  the chosen model (fitted on the first 70 % of a record) scored on all of "
+          "another record, load-cell offset\n        re-estimated there; the states start at "
+          "rest and warm up on the first 0.5 s of motion, not scored.\n"
+          "        (a) every other record of the README family (ordered pairs); (b) every "
+          "other record of the naming group\n        (N, N.1, N.2, N.2.2); (c) the next "
+          "record of the family at the same sample rate (sorted names, cyclic)")
+    print("scaled: as cross, with one force scale re-estimated on the other record too "
+          "(offset + scale: a current change), not a prediction")
+    stems = [p.stem for p in files]
+    data = {p.stem: load_mr(p) for p in files}
+    fam = {n: _family(n) for n in stems}
+    grp = {n: _naming_group(n) for n in stems}
+    rate = {n: round(data[n].sample_rate_hz) for n in stems}
+    fams = sorted(set(fam.values()))
 
-    def same_rate(group: list[Path], p: Path) -> list[Path]:
-        g = [q for q in group if rate[q] == rate[p]]
-        return g if len(g) > 1 else group
-    print(f"{'record':>12} {'fam':>4} {'fs':>5} | {'before first':>16} {'within':>6} "
-          f"{'cross':>6} | "
-          f"{'after effects':>40} {'within':>6} {'cross':>6} {'s':>5} | validated on "
-          "(cross any rate: before -> after)")
+    def next_of(n: str) -> str:
+        group = [m for m in stems if fam[m] == fam[n]]
+        sub = [m for m in group if rate[m] == rate[n]]
+        sub = sub if len(sub) > 1 else group
+        return sub[(sub.index(n) + 1) % len(sub)]
+
+    print(f"{'record':>12} {'fam':>4} {'group':>5} {'fs':>5} | {'before':>30} {'within':>6} "
+          f"| {'after':>42} {'within':>6} {'s':>5}")
     rows = []
-    for fam, group in fams.items():
-        for i, p in enumerate(group):
-            sub = same_rate(group, p)
-            other = sub[(sub.index(p) + 1) % len(sub)]
-            other_any = group[(i + 1) % len(group)]
-            before = diagnose_rig(data[p], effects=BEFORE_EFFECTS)
-            t0 = time.perf_counter()
-            after = diagnose_rig(data[p])
-            secs = time.perf_counter() - t0
-            ob, oa = before.to_dict(), after.to_dict()
-            fb = ob["findings"][0]["effect"] if ob["findings"] else "-"
-            named = [f["effect"] for f in oa["findings"]]
-            params = {f["effect"] + "." + k: v for f in oa["findings"]
-                      for k, v in {**f.get("parameters", {}), **f.get("shape", {})}.items()}
-            params["damping"] = oa["parameters"]["damping"]["value"]
-            params["stiffness"] = oa["parameters"]["stiffness"]["value"]
-            fc_before = next((f["parameters"]["friction_force_n"] for f in ob["findings"]
-                              if f["effect"] == "coulomb_friction"), float("nan"))
-            r = {"name": p.stem, "fam": fam, "first_before": fb, "named": named,
-                 "within_before": ob["augmented"]["nrmse_validation"],
-                 "within_after": oa["augmented"]["nrmse_validation"],
-                 "cross_before": cross_nrmse(before.selection.chosen, data[other]),
-                 "cross_after": cross_nrmse(after.selection.chosen, data[other]),
-                 "any_before": cross_nrmse(before.selection.chosen, data[other_any]),
-                 "any_after": cross_nrmse(after.selection.chosen, data[other_any]),
-                 "pairs_before": [cross_nrmse(before.selection.chosen, data[q])
-                                  for q in group if q != p],
-                 "pairs_after": [cross_nrmse(after.selection.chosen, data[q])
-                                 for q in group if q != p],
-                 "rpairs_before": [cross_nrmse(before.selection.chosen, data[q])
-                                   for q in sub if q != p],
-                 "rpairs_after": [cross_nrmse(after.selection.chosen, data[q])
-                                  for q in sub if q != p],
-                 "params": params, "fc_before": fc_before, "secs": secs}
-            rows.append(r)
-            print(f"{p.stem:>12} {fam:>4} {data[p].sample_rate_hz:5.1f} | {fb:>16} "
-                  f"{r['within_before']:6.4f} {r['cross_before']:6.4f} | "
-                  f"{'+'.join(named):>40} {r['within_after']:6.4f} {r['cross_after']:6.4f} "
-                  f"{secs:5.1f} | {other.stem} (any rate: {other_any.stem} "
-                  f"{r['any_before']:.4f} -> {r['any_after']:.4f})")
-    n = len(rows)
-    hyst_first = sum(bool(r["named"]) and r["named"][0] in HYSTERESIS for r in rows)
-    fric_first = sum(bool(r["named"]) and r["named"][0] == "coulomb_friction" for r in rows)
-    hyst_named = sum(any(e in HYSTERESIS for e in r["named"]) for r in rows)
-    print(f"\nbefore: friction named first on "
-          f"{sum(r['first_before'] == 'coulomb_friction' for r in rows)}/{n} records")
-    print(f"after:  hysteresis named on {hyst_named}/{n}; named first: hysteresis "
-          f"{hyst_first}/{n}, "
-          f"Coulomb friction {fric_first}/{n}; 'unexplained' left on "
-          f"{sum('unexplained' in r['named'] for r in rows)}/{n}")
-    for fam in [None, *fams]:
-        sel = [r for r in rows if fam is None or r["fam"] == fam]
-        lab = "all" if fam is None else fam
-        for key in ("within", "cross", "any"):
-            b = np.array([r[f"{key}_before"] for r in sel])
-            a = np.array([r[f"{key}_after"] for r in sel])
-            print(f"{lab:>4} {key:>6} NRMSE: before median {np.median(b):.4f} "
-                  f"(IQR {np.percentile(b, 25):.4f}-{np.percentile(b, 75):.4f}, max {b.max():.4f})"
-                  f" -> after median {np.median(a):.4f} (IQR {np.percentile(a, 25):.4f}-"
-                  f"{np.percentile(a, 75):.4f}, max {a.max():.4f})")
-        for key, what in (("rpairs", "same family and rate"), ("pairs", "same family")):
-            pb = np.concatenate([r[f"{key}_before"] for r in sel])
-            pa = np.concatenate([r[f"{key}_after"] for r in sel])
-            print(f"{lab:>4} all-pairs NRMSE, {what} ({pa.size} ordered pairs): before median "
-                  f"{np.median(pb):.4f} -> after median {np.median(pa):.4f} (IQR "
-                  f"{np.percentile(pa, 25):.4f}-{np.percentile(pa, 75):.4f})")
-    print("\nparameter spread per family (after; records whose chosen model has the parameter):")
-    for fam in fams:
-        sel = [r for r in rows if r["fam"] == fam]
+    for n in stems:
+        d = data[n]
+        before = diagnose_rig(d, effects=BEFORE_EFFECTS)
+        t0 = time.perf_counter()
+        after = diagnose_rig(d)
+        secs = time.perf_counter() - t0
+        ob, oa = before.to_dict(), after.to_dict()
+        nb = [f["effect"] for f in ob["findings"]]
+        na = [f["effect"] for f in oa["findings"]]
+        params = {f["effect"] + "." + k: v for f in oa["findings"]
+                  for k, v in {**f.get("parameters", {}), **f.get("shape", {})}.items()}
+        params["damping"] = oa["parameters"]["damping"]["value"]
+        params["stiffness"] = oa["parameters"]["stiffness"]["value"]
+        others = [m for m in stems if m != n and fam[m] == fam[n]]
+        r = {"name": n, "fam": fam[n], "grp": grp[n], "named_before": nb, "named": na,
+             "within_before": ob["augmented"]["nrmse_validation"],
+             "within_after": oa["augmented"]["nrmse_validation"],
+             "params": params, "secs": secs, "next": next_of(n)}
+        models = [("before", before.selection.chosen), ("after", after.selection.chosen)]
+        if forced:
+            cand = next((c for c, _ in after.selection.ranking if c.effects == FORCED), None)
+            if cand is None:  # not tried there (its effects did not help alone)
+                cand = diagnose_rig(d, effects=FORCED).selection.chosen
+            r["within_forced"] = cand.nrmse_validation
+            models.append(("forced", cand))
+        for key, ch in models:
+            r[f"cross_{key}"] = {m: cross_nrmse(ch, data[m]) for m in others}
+            r[f"scaled_{key}"] = {m: scaled_cross_nrmse(ch, data[m]) for m in others}
+        rows.append(r)
+        print(f"{n:>12} {fam[n]:>4} {grp[n]:>5} {d.sample_rate_hz:5.1f} | {'+'.join(nb):>30} "
+              f"{r['within_before']:6.4f} | {'+'.join(na):>42} {r['within_after']:6.4f} "
+              f"{secs:5.1f}", flush=True)
+    n_rec = len(rows)
+    hyst = sum(any(e in HYSTERESIS for e in r["named"]) for r in rows)
+    first = sum(bool(r["named"]) and r["named"][0] in HYSTERESIS for r in rows)
+    print(f"\nafter: hysteresis named on {hyst}/{n_rec}, first on {first}/{n_rec}; "
+          f"build-up hysteresis chosen on "
+          f"{sum('buildup_hysteresis' in r['named'] for r in rows)}/{n_rec}, Dahl friction on "
+          f"{sum('dahl_friction' in r['named'] for r in rows)}/{n_rec}; Coulomb friction "
+          f"added on {sum('coulomb_friction' in r['named'] for r in rows)}/{n_rec}; "
+          f"'unexplained' left on {sum('unexplained' in r['named'] for r in rows)}/{n_rec}")
+
+    def pairs(key: str, which: str, pick) -> list[float]:
+        return [v for r in rows for m, v in r[f"{key}_{which}"].items() if pick(r, m)]
+
+    whiches = ("before", "after", "forced") if forced else ("before", "after")
+
+    def line(label: str, key: str, pick) -> None:
+        for i, which in enumerate(whiches):
+            print(f"  {label if i == 0 else '':<46} {which:<6} {_med(pairs(key, which, pick))}")
+
+    if forced:
+        print(f"forced: {'+'.join(FORCED)} on every record, whatever the selection chose "
+              "(a diagnostic, not what rig mode reports)")
+    print("\nheld-out NRMSE, medians (IQR, number of values)")
+    for which in whiches:
+        print(f"  {'within-record (' + which + ')':<46} "
+              f"{_med([r[f'within_{which}'] for r in rows])}")
+    line("(a) cross, all ordered pairs of the family", "cross", lambda r, m: True)
+    for f in fams:
+        line(f"    family {f}", "cross", lambda r, m, f=f: r["fam"] == f)
+    line("(b) cross, all ordered pairs of the naming group", "cross",
+         lambda r, m: grp[m] == r["grp"])
+    for g in ("N", "N.1", "N.2", "N.2.2"):
+        line(f"    group {g}", "cross", lambda r, m, g=g: r["grp"] == g and grp[m] == g)
+    line("(c) cross, next record of the family and rate", "cross", lambda r, m: m == r["next"])
+    print("\nwith one force scale re-estimated per validation record (not a prediction):")
+    line("(a) scaled, all ordered pairs of the family", "scaled", lambda r, m: True)
+    line("(b) scaled, all ordered pairs of the naming group", "scaled",
+         lambda r, m: grp[m] == r["grp"])
+    print("\nparameter spread (after; records whose chosen model has the parameter):")
+    for label, pick in ([(f"family {f}", lambda r, f=f: r["fam"] == f) for f in fams]
+                        + [(f"group {g}", lambda r, g=g: r["grp"] == g)
+                           for g in ("N", "N.1", "N.2", "N.2.2")]):
+        sel = [r for r in rows if pick(r)]
         keys = sorted({k for r in sel for k in r["params"]})
-        print(f"  family {fam} ({len(sel)} records)")
-        print(f"    {'coulomb (before) F_c':>44}: {_spread([r['fc_before'] for r in sel])}")
+        print(f"  {label} ({len(sel)} records)")
         for k in keys:
-            print(f"    {k:>44}: {_spread([r['params'].get(k, np.nan) for r in sel])}")
+            print(f"    {k:>52}: {_spread([r['params'].get(k, np.nan) for r in sel])}")
     print(f"time per record (after): median {np.median([r['secs'] for r in rows]):.1f} s, "
           f"max {max(r['secs'] for r in rows):.1f} s")
+
+
+def run_mr_evidence() -> None:
+    """Does the MR damper's loop depend on where the stroke turned? Per naming group, the
+    loop height (force on the extending branch minus force on the compressing branch) at
+    4-6 mm of displacement, against the stroke and the speed there; a least-squares line
+    ``height = h0 + a stroke + b speed`` over the group's records separates the two. A
+    spring, or a friction level that depends on the position, gives the same height at the
+    same place and speed whatever the stroke (``a`` = 0); a force that builds up with the
+    travel since the reversal gives ``a`` > 0."""
+    files = sorted(MR_DIR.glob("*.csv"))
+    print("\n== MR damper: loop height at 4-6 mm against stroke and speed ==")
+    by_group: dict[str, list[tuple[str, float, float, float]]] = {}
+    for p in files:
+        d = load_mr(p)
+        x_mm = 1e3 * d.displacement
+        at = (x_mm > 4.0) & (x_mm < 6.0)
+        up, down = at & (d.velocity > 0), at & (d.velocity < 0)
+        if up.sum() < 5 or down.sum() < 5:
+            continue
+        height = float(np.median(d.force[up]) - np.median(d.force[down]))
+        speed = 1e3 * float(np.median(d.velocity[up]) - np.median(d.velocity[down])) / 2
+        by_group.setdefault(_naming_group(p.stem), []).append(
+            (p.stem, float(np.ptp(x_mm)), speed, height))
+    for g, rows in sorted(by_group.items()):
+        rows.sort(key=lambda r: r[1])
+        st, sp, h = (np.array([r[i] for r in rows]) for i in (1, 2, 3))
+        a = np.column_stack([np.ones_like(st), st, sp])
+        coef, *_ = np.linalg.lstsq(a, h, rcond=None)
+        print(f"  group {g:5} ({len(rows)} records): height = {coef[0]:.0f} N + {coef[1]:.2f} N "
+              f"per mm of stroke + {coef[2]:.2f} N per mm/s of speed")
+        print("    " + ", ".join(f"{n} {s_:.0f} mm {v:.0f} mm/s {hh:.0f} N"
+                                  for n, s_, v, hh in rows))
 
 
 def main(argv=None) -> int:
@@ -317,6 +401,10 @@ def main(argv=None) -> int:
     ap.add_argument("--per-ratio", type=int, default=2, help="cases per fs/f_res ratio")
     ap.add_argument("--skip-mr", action="store_true")
     ap.add_argument("--only-mr", action="store_true")
+    ap.add_argument("--evidence", action="store_true",
+                    help="MR records: loop height against stroke and speed, then stop")
+    ap.add_argument("--forced", action="store_true",
+                    help="MR records: also score coulomb + build-up hysteresis on every record")
     a = ap.parse_args(argv)
     seed = a.seed if a.seed is not None else int.from_bytes(os.urandom(4), "little")
     print(f"bench_rig: master seed {seed} (repeat with --seed {seed})")
@@ -325,8 +413,10 @@ def main(argv=None) -> int:
     if not a.only_mr:
         run_duffing(rng, a.cases)
         run_ratios(rng, a.per_ratio)
-    if not a.skip_mr:
-        run_mr()
+    if a.evidence:
+        run_mr_evidence()
+    elif not a.skip_mr:
+        run_mr(a.forced)
     print(f"\ntotal {time.perf_counter() - t0:.0f} s")
     return 0
 

@@ -93,7 +93,8 @@ def ride_height_reported(out: dict[str, Any]) -> str | None:
 
 
 #: Effects that model the same physics in two forms: naming either is naming it.
-SAME_PHYSICS = {"hysteretic_spring": "hysteresis", "bouc_wen": "hysteresis"}
+SAME_PHYSICS = {"hysteretic_spring": "hysteresis", "bouc_wen": "hysteresis",
+                "dahl_friction": "hysteresis", "buildup_hysteresis": "hysteresis"}
 
 
 def physics_of(name: str) -> str:

@@ -50,7 +50,16 @@ from fielddiag.identify.terms import ForceModel, make_term, split_shape
 
 #: Effect terms tried by default, in the diagnosis library's names.
 RIG_EFFECTS = ("coulomb_friction", "cubic_stiffness", "bump_stop", "asymmetric_damping",
-               "dahl_friction")
+               "dahl_friction", "buildup_hysteresis")
+#: Effects that refine another (the build-up hysteresis is Dahl friction plus a build-up
+#: along the stroke): where that one is a candidate too, tried only where it alone predicts
+#: the held-out data significantly better than the linear model, and started from its fit.
+REFINES = {"buildup_hysteresis": "dahl_friction"}
+#: Parameters that are physical anywhere in their range, bounds included, and so never
+#: make a fit unphysical: a build-up in one direction only (the other at zero), one that
+#: never levels off (its travel at the upper bound), a release within any travel.
+FREE_FORM_PARAMS = ("compression_buildup_n_per_m", "extension_buildup_n_per_m",
+                    "buildup_travel_m", "release_displacement_m")
 #: The moving mass is kept when its force is at least this share of the force's spread.
 MIN_INERTIA_SHARE = 0.01
 #: Warm-up [s]: the internal states of a hysteresis start at rest, unknown to the data, so
@@ -417,8 +426,14 @@ def _start_values(model: ForceModel, data: RigData, linear: dict[str, float]) ->
             base.append(5.0 * linear.get("linear_spring.suspension_stiffness_n_per_m", 2e4))
         elif spec.name == "gap_m":
             base.append(float(np.quantile(-data.displacement, 0.9)))
-        elif spec.name == "yield_displacement_m":
-            base.append(float(np.median(YIELD_STARTS)) * float(np.std(data.displacement)))
+        elif spec.name in ("yield_displacement_m", "release_displacement_m"):
+            # a release (of a build-up) over about twice the pre-yield travel
+            share = float(np.median(YIELD_STARTS)) * float(np.std(data.displacement))
+            base.append(share * (2.0 if spec.name == "release_displacement_m" else 1.0))
+        elif spec.name == "buildup_travel_m":
+            # the build-up levels off after about the stroke's span
+            base.append(float(np.clip(np.ptp(data.displacement), 1.1 * spec.lower,
+                                      0.5 * spec.upper)))
         else:
             base.append(spec.typical)
     starts = [np.array([linear.get("f0", 0.0), linear.get("m", 0.0), *base])]
@@ -427,11 +442,14 @@ def _start_values(model: ForceModel, data: RigData, linear: dict[str, float]) ->
             # a hysteresis' yield travel: anywhere from far below a sample's travel (a
             # sharp friction-like loop) to a good share of the stroke
             j = 2 + model.index(key)
+            rel = key.replace("yield_displacement_m", "release_displacement_m")
             grid = []
             for st in starts:
                 for q in YIELD_STARTS:
                     st = st.copy()
                     st[j] = q * float(np.std(data.displacement))
+                    if rel in model.param_keys:
+                        st[2 + model.index(rel)] = 2.0 * st[j]
                     grid.append(st)
             starts = grid
     if "bump_stop.gap_m" in model.param_keys:
@@ -485,7 +503,7 @@ def fit_rig_model(
     lower = np.concatenate(([-np.inf, 0.0], model.lower))
     upper = np.concatenate(([np.inf, np.inf], model.upper))
     for key in model.param_keys:
-        if key.endswith(".yield_displacement_m"):
+        if key.endswith((".yield_displacement_m", ".release_displacement_m")):
             # a pre-yield travel far below the travel of one sample is not resolved by
             # the data (the loop is then a step), and would only cost integration steps
             j = 2 + model.index(key)
@@ -696,6 +714,8 @@ def _at_bound(
         if key.split(".")[0] not in effects:
             continue
         v, s = z[2 + i], std[2 + i]
+        if spec.name in FREE_FORM_PARAMS:
+            continue
         if spec.name == "smoothing_velocity_mps":
             # a loosely determined shape parameter: only its upper end (friction turned
             # into a linear damper) is telling
@@ -1002,13 +1022,33 @@ def _select_among(effects: Sequence[str], baseline: CandidateFit, fit: RigData, 
     the linear model."""
     linear = {k: v for k, v in baseline.values.items()}
     linear["f0"], linear["m"] = baseline.values["preload_n"], baseline.values["moving_mass_kg"]
-    singles = {e: _candidate((e,), fit, val, linear, fit_mass) for e in effects}
+    singles: dict[str, CandidateFit] = {}
+    for e in sorted(effects, key=lambda e: e in REFINES):
+        base = REFINES.get(e)
+        if base is None or base not in effects:
+            singles[e] = _candidate((e,), fit, val, linear, fit_mass)
+            continue
+        if not _helps(baseline, singles[base]):
+            continue
+        # started from the refined effect's fit: its friction and pre-yield travel, a
+        # release over twice that travel
+        start = dict(linear)
+        for k, v in singles[base].values.items():
+            if k.startswith(base + "."):
+                start[e + k[len(base):]] = v
+        if f"{e}.yield_displacement_m" in start:
+            start[f"{e}.release_displacement_m"] = 2.0 * start[f"{e}.yield_displacement_m"]
+        singles[e] = _candidate((e,), fit, val, start, fit_mass)
+    effects = [e for e in effects if e in singles]
     candidates = list(singles.values())
     if max_pair:
-        helps = {e: compare(baseline, c).beats(c.n_params - baseline.n_params)
-                 for e, c in singles.items()}
+        helps = {e: _helps(baseline, c) for e, c in singles.items()}
         for pair in itertools.combinations(effects, 2):
-            if any(get_effect(e).n_states for e in pair) and not all(helps[e] for e in pair):
+            n_stateful = sum(bool(get_effect(e).n_states) for e in pair)
+            if n_stateful and not all(helps[e] for e in pair):
+                continue
+            if n_stateful > 1:
+                # two hysteresis models of the same loop (each has its friction state)
                 continue
             # started from the two single fits (a hysteresis' yield travel then needs no
             # screening)
@@ -1017,7 +1057,42 @@ def _select_among(effects: Sequence[str], baseline: CandidateFit, fit: RigData, 
                 start.update({k: v for k, v in singles[e].values.items()
                               if k.startswith(e + ".")})
             candidates.append(_candidate(pair, fit, val, start, fit_mass))
-    return _select_whitened(baseline, candidates, fit)
+    return _other_hysteresis(_select_whitened(baseline, candidates, fit))
+
+
+def _helps(baseline: CandidateFit, cand: CandidateFit) -> bool:
+    """Does ``cand`` predict the held-out data significantly better than the linear model?"""
+    return compare(baseline, cand).beats(cand.n_params - baseline.n_params)
+
+
+def _other_hysteresis(sel: Selection) -> Selection:
+    """The chosen model with its hysteresis swapped for another hysteresis model, where that
+    predicts the held-out data significantly better by a margin worth its extra parameters.
+
+    The selection ranks single effects first and then only pairs that contain the chosen
+    single one; two hysteresis models (Dahl friction, the build-up hysteresis) are
+    alternatives for the same loop, so the pair with the other one is compared here by the
+    same held-out rule (:meth:`~fielddiag.diagnose.selection.Comparison.beats`)."""
+    chosen = sel.chosen
+    if chosen is sel.baseline:
+        return sel
+    stateful = {e for e in chosen.effects if get_effect(e).n_states}
+    if len(stateful) != 1:
+        return sel
+    rest = set(chosen.effects) - stateful
+    best = chosen
+    for c, _ in sel.ranking:
+        swapped = set(c.effects) - rest
+        if (c is chosen or not c.physical or len(c.effects) != len(chosen.effects)
+                or not rest <= set(c.effects) or len(swapped) != 1
+                or swapped == stateful or not get_effect(swapped.pop()).n_states):
+            continue
+        if compare(best, c).beats(c.n_params - best.n_params):
+            best = c
+    if best is chosen:
+        return sel
+    return Selection(best, sel.baseline, compare(sel.baseline, best), sel.ranking,
+                     sel.rejected_unphysical)
 
 
 def _inertia_in(chosen: CandidateFit, fit: RigData, val: RigData) -> bool:

@@ -33,6 +33,7 @@ from fielddiag.effects import (
     register_effect,
     unregister_effect,
 )
+from fielddiag.effects.buildup_hysteresis import BuildupHysteresis
 from fielddiag.errors import FieldDiagError
 
 # ------------------------------------------------------------------ force laws by hand
@@ -91,6 +92,32 @@ def test_stateful_force_and_state_rates_by_hand() -> None:
                                            tm.values_of(), np.array([[1e-3]]))
     assert f[0] == pytest.approx(-150.0, rel=1e-12)
     assert dz[0, 0] == pytest.approx(0.1 - 1.5e5 / 1800.0 * 1e-3, rel=1e-12)
+
+
+def test_buildup_hysteresis_force_state_rates_and_rest_by_hand() -> None:
+    # F_f 50 N, x_y 0.1 mm, x_r 0.2 mm, k_c 3000 N/m, k_e 1000 N/m, h_y 20 mm
+    bh = BuildupHysteresis(50.0, 1e-4, 2e-4, 3000.0, 1000.0, 0.02)
+    model = fx.ForceModel([bh])
+    z = np.array([[0.5, 0.004, 0.002], [0.5, 0.004, 0.002]])
+    f, _, dp, dz = model.force_and_state_rates(np.zeros(2), np.array([-0.1, 0.1]), 0.0,
+                                               model.values_of(), z)
+    # F = -F_f w + k_c a - k_e b = -25 + 12 - 2
+    np.testing.assert_allclose(f, [-15.0, -15.0], rtol=1e-12)
+    np.testing.assert_allclose(dp[0], [-0.5, 0.0, 0.0, 0.004, -0.002, 0.0], rtol=1e-12)
+    # compressing: w towards -1 at |rdot| / x_y, a builds up as |rdot| (1 - a / h_y), b is
+    # released as |rdot| b / x_r
+    np.testing.assert_allclose(dz[0], [(-0.1 - 0.05) / 1e-4, 0.1 * (1 - 0.2), -1.0],
+                               rtol=1e-12)
+    # extending: the mirror image
+    np.testing.assert_allclose(dz[1], [(0.1 - 0.05) / 1e-4, -2.0, 0.1 * (1 - 0.1)],
+                               rtol=1e-12)
+    # at rest after a slow compression to r = -10 mm: full friction up, the build-up of
+    # 10 mm of travel, h_y (1 - exp(-0.5))
+    a = 0.02 * (1 - math.exp(-0.5))
+    assert bh.static_force_n(-0.01)[()] == pytest.approx(50.0 * (1 - math.exp(-100.0))
+                                                         + 3000.0 * a, rel=1e-12)
+    assert bh.static_force_n(0.01)[()] == pytest.approx(-50.0 * (1 - math.exp(-100.0))
+                                                        - 1000.0 * a, rel=1e-12)
 
 
 def test_states_integrated_along_a_path() -> None:
