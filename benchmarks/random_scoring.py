@@ -104,8 +104,23 @@ def physics_of(name: str) -> str:
 
 def expected_names(effects: list[tuple[str, dict]], library: tuple[str, ...]) -> list[str]:
     """What a correct diagnosis names for each true effect: the effect if the diagnosis
-    tries it, else ``unexplained``."""
-    return [n if n in library else UNEXPLAINED for n, _ in effects]
+    tries it, or one of the same physics (Dahl friction, which the car library does not
+    try, is hysteresis, which it does), else ``unexplained``."""
+    tried = {physics_of(n) for n in library}
+    return [n if n in library or physics_of(n) in tried else UNEXPLAINED for n, _ in effects]
+
+
+def right_first(named: list[str], effects: list[tuple[str, dict]],
+                library: tuple[str, ...]) -> bool:
+    """The first suspension finding names a true effect's physics, or is ``unexplained``
+    for an effect outside the library (also one whose physics the library has in another
+    form: describing its shape without a name is not wrong)."""
+    if not named:
+        return False
+    ok = {physics_of(e) for e in expected_names(effects, library)}
+    if any(n not in library for n, _ in effects):
+        ok.add(UNEXPLAINED)
+    return physics_of(named[0]) in ok
 
 
 def position_dependent(name: str, params: dict[str, float]) -> bool:
@@ -191,8 +206,7 @@ def score_case(case: Any, out: dict[str, Any], floor_nrmse: float | None,
             "reported": kind in reported,
         }
     posdep = [n for n, p in effects if position_dependent(n, p)]
-    top1 = (bool(named) and physics_of(named[0]) in {physics_of(e) for e in expected}
-            if effects else None)
+    top1 = right_first(named, effects, library) if effects else None
     pos_errs = [e["rel_error"] for e in errs if e["effect"] in posdep]
     rh = ride_height_reported(out)
     truth_rh = "restored" if case.ride_height_restored else "passive"

@@ -232,3 +232,19 @@ def test_tables_from_rows() -> None:
     gain = next(ln for ln in text.splitlines() if ln.startswith("gain_change"))
     assert gain.endswith("1/3 (33 %)")
     assert "cases that raised: 1" in text and "seed 1 (x): E: e" in text
+
+
+def test_same_physics_outside_the_library_is_named_or_unexplained() -> None:
+    lib = ("coulomb_friction", "hysteretic_spring", "bouc_wen")
+    dahl = [("dahl_friction", {"friction_force_n": 50.0})]
+    travel = [("travel_dependent_damping", {"extra_damping_ns_per_m": 500.0})]
+    # Dahl friction is hysteresis, which the library tries as a hysteretic spring
+    assert rs.expected_names(dahl, lib) == ["dahl_friction"]
+    assert rs.right_first(["hysteretic_spring"], dahl, lib)
+    assert rs.right_first(["unexplained"], dahl, lib)  # its shape without a name: not wrong
+    assert not rs.right_first(["coulomb_friction"], dahl, lib)
+    # no form of a travel-dependent damper in the library: only 'unexplained' is right
+    assert rs.expected_names(travel, lib) == ["unexplained"]
+    assert rs.right_first(["unexplained"], travel, lib)
+    assert not rs.right_first(["bouc_wen"], travel, lib)
+    assert not rs.right_first([], travel, lib)
