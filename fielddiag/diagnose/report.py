@@ -43,6 +43,27 @@ def model_parameter(key: str) -> tuple[str, str]:
     return key.replace("_", " "), ""
 
 
+#: The data problems' names in a sentence.
+_DATA_NAMES = {"sensor_gain_changed": "sensor gain change",
+               "channel_time_offset": "channel time offset"}
+
+
+def data_problem_names(out: dict) -> list[str]:
+    """The data problems a diagnosis corrected, in words (``["sensor gain change"]``).
+
+    Parameters
+    ----------
+    out : dict
+        The diagnosis's JSON.
+
+    Returns
+    -------
+    list of str
+    """
+    return [_DATA_NAMES.get(p.get("kind"), str(p.get("kind")))
+            for p in out.get("data_problems") or [] if isinstance(p, dict)]
+
+
 def _fmt_model(model: dict, stds: dict | None = None) -> str:
     """``sprung mass 379.7 +- 3.1 kg, suspension stiffness 2.397e+04 +- 210 N/m, ...``"""
     stds = stds or {}
@@ -83,6 +104,10 @@ def format_summary(out: dict) -> str:
         lines.append(
             f"  with findings  NRMSE fit {a['nrmse']:.3f}, held-out {a['nrmse_validation']:.3f}"
         )
+    elif data_problem_names(out) and a:
+        lines.append(
+            f"  corrected      NRMSE fit {a['nrmse']:.3f}, held-out {a['nrmse_validation']:.3f}"
+            " (in the units of the recording)")
     for f in out["findings"]:
         conf = f.get("confidence", 0.0)
         lines.append(f"  * {f['effect']} (confidence {conf:.2f}) "
@@ -100,15 +125,25 @@ def format_summary(out: dict) -> str:
             lines.append(f"    worst windows: {txt}")
     aug, lin = out.get("augmented_model") or {}, out.get("linear_model") or {}
     aug_std, lin_std = out.get("augmented_model_std") or {}, out.get("linear_model_std") or {}
+    fixed = data_problem_names(out)
     if mode != "rig":
         if out["verdict"] != "adequate" and aug and out["findings"]:
-            lines.append("  suspension, fitted with the findings: " + _fmt_model(aug, aug_std))
+            lines.append("  suspension, fitted with the findings"
+                         + (f" and the {' and the '.join(fixed)} corrected" if fixed else "")
+                         + ": " + _fmt_model(aug, aug_std))
             if lin and out.get("linear_model_adequate", True):
                 lines.append("    (the linear model alone, biased by what it leaves out: "
                              + _fmt_model(lin, lin_std) + ")")
             elif lin:
                 lines.append("    (the linear model alone has no meaningful values here: "
                              "see the warning below)")
+        elif aug and fixed:
+            # a data problem chosen alone: the linear model fitted to the corrected drives
+            lines.append(f"  suspension, linear model with the {' and the '.join(fixed)} "
+                         "corrected: " + _fmt_model(aug, aug_std))
+            if lin:
+                lines.append("    (fitted to the drives as recorded: " + _fmt_model(lin, lin_std)
+                             + ")")
         elif lin and not out.get("linear_model_adequate", True):
             lines.append("  suspension, linear model: no meaningful values (see the warning "
                          "below)")

@@ -524,12 +524,14 @@ def _same_drive(window_session: Any, fit_session: str) -> bool:
 def _linear_parameters_table(result: Mapping[str, Any]) -> None:
     """The linear part as the linear model alone fitted it and refitted with the findings
     (what the missing physics was hiding), when the result holds both."""
-    from fielddiag.diagnose.report import model_parameter
+    from fielddiag.diagnose.report import data_problem_names, model_parameter
 
     alone, refit = result.get("linear_model"), result.get("augmented_model")
     if not (isinstance(alone, Mapping) and isinstance(refit, Mapping)) or not refit:
         return
-    if result.get("verdict") == "adequate":
+    fixed = data_problem_names(result)
+    findings = bool(result.get("findings")) and result.get("verdict") != "adequate"
+    if not (findings or fixed):
         return
     alone_std = result.get("linear_model_std") or {}
     refit_std = result.get("augmented_model_std") or {}
@@ -545,11 +547,13 @@ def _linear_parameters_table(result: Mapping[str, Any]) -> None:
                      "alone": pm(alone.get(key), alone_std.get(key)) if meaningful
                      else "not meaningful",
                      "refit": pm(value, refit_std.get(key))})
-    ui.label("Linear part of the model: the linear model alone, and refitted with the "
-             "findings").classes("text-base font-semibold")
+    what = " and ".join((["the findings"] if findings else [])
+                        + [f"the {name} corrected" for name in fixed])
+    ui.label("Linear part of the model: the linear model alone, fitted to the drives as "
+             f"recorded, and refitted with {what}").classes("text-base font-semibold")
     ui.table(columns=[{"name": "k", "label": "parameter", "field": "k", "align": "left"},
                       {"name": "alone", "label": "linear model alone", "field": "alone"},
-                      {"name": "refit", "label": "with the findings", "field": "refit"}],
+                      {"name": "refit", "label": f"with {what}", "field": "refit"}],
              rows=rows, row_key="k").props("dense flat bordered").classes("max-w-xl").mark(
         "linear-parameters")
 

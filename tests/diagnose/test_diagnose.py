@@ -22,6 +22,7 @@ import pytest
 from threadpoolctl import threadpool_limits
 
 from fielddiag.cli import main
+from fielddiag.diagnose.report import format_summary
 from fielddiag.scenarios import SCENARIOS, diagnose_scenario, write_scenario
 
 EFFECT_CASES = {
@@ -293,6 +294,13 @@ def test_each_sensor_problem_is_a_data_warning_not_physics(results, name, kind, 
         assert 0 < found["std"] < tol
         # corrected, the linear model describes the car: the held-out error drops
         assert out["augmented"]["nrmse_validation"] < 0.8 * out["baseline"]["nrmse_validation"]
+        # ... and its values, not those of the drives as recorded, are the headline
+        car = SCENARIOS[name].car
+        assert out["augmented_model"]["sprung_mass_kg"] == pytest.approx(car.body_mass_kg,
+                                                                        rel=0.03)
+        text = format_summary(out)
+        assert "suspension, linear model with the " in text and " corrected: " in text
+        assert "(fitted to the drives as recorded: " in text
     if kind == "clipping":
         assert {w["channel"] for w in warnings if w["kind"] == "clipping"} == {
             "wheel accelerometer"}
