@@ -167,7 +167,7 @@ class GravityGain:
         return self.body if self.body.z >= self.wheel.z else self.wheel
 
     def describe(self) -> str:
-        """``"the wheel accelerometer's gravity reading went from 9.81 to 9.61 m/s2
+        """``"the wheel accelerometer's gravity reading went from 9.807 to 9.611 m/s2
         (-2.0 +- 0.2 %); the body's stayed within 0.1 %"``."""
         c = self.culprit()
         o = self.wheel if c is self.body else self.body
