@@ -374,7 +374,7 @@ def _equation_error_fit(
         th, m, r0 = split(z)
         off = r0[d["sess"]]
         f, dst, dth = _path_force(model, d["r"] + off, d["v"], d["x"], th, d["sess"],
-                                  d["fs"])
+                                  d["fs"], want_jac)
         g = GRAVITY if absolute else 0.0
         mt = m + d["dm"]
         e = d["a"] + (d["dm"] * g - f) / mt
@@ -403,10 +403,10 @@ def _equation_error_fit(
 
 
 def _path_force(model: ForceModel, r: np.ndarray, rdot: np.ndarray, x2: np.ndarray,
-                th: np.ndarray, session: np.ndarray, rate_hz: np.ndarray
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                th: np.ndarray, session: np.ndarray, rate_hz: np.ndarray,
+                state_jacobian: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The model's force on stacked drives; internal states integrated per drive (from
-    rest at its first sample)."""
+    rest at its first sample), their parameters' derivatives only if ``state_jacobian``."""
     if model.n_states == 0:
         return model.force(r, rdot, x2, th)
     f = np.empty(r.size)
@@ -416,7 +416,8 @@ def _path_force(model: ForceModel, r: np.ndarray, rdot: np.ndarray, x2: np.ndarr
     for sl in np.split(np.arange(r.size), bounds):
         if sl.size == 0:
             continue
-        a, b, c, _ = model.force_along_path(r[sl], rdot[sl], x2[sl], th, float(rate_hz[sl[0]]))
+        a, b, c, _ = model.force_along_path(r[sl], rdot[sl], x2[sl], th, float(rate_hz[sl[0]]),
+                                            state_jacobian=state_jacobian)
         f[sl], dst[sl], dth[sl] = a, b, c
     return f, dst, dth
 
@@ -913,8 +914,20 @@ def _departure(
 
 
 #: An effect with internal states gets the full (grey-box) fit only where its equation-
-#: error signature beats the linear model on held-out data by this paired-block t.
+#: error signature beats the linear model on held-out data by this paired-block t (and a
+#: pair with one only where its signature beats its better single's by it).
 STATEFUL_SCREEN_T = 1.0
+
+
+def _pair_screen_t(combo: tuple[str, ...], ee_fits: dict) -> float:
+    """Paired-block t of a pair's equation-error signature against its better single's on
+    held-out data (nan when one of them could not be screened)."""
+    pair = ee_fits.get(combo)
+    singles = [ee_fits.get((e,)) for e in combo]
+    if pair is None or any(s is None for s in singles):
+        return float("nan")
+    best = min(singles, key=lambda s: float(np.mean(s.residual_validation**2)))
+    return paired_block_t(best.residual_validation, pair.residual_validation)
 
 
 #: Structure left in the chosen model's residual is reported as ``unexplained`` only when
@@ -1234,6 +1247,17 @@ def diagnose_drives(
         for a, b in itertools.combinations(useful, 2)
     ]
     for combo, restored in pairs[:max_pair_fits]:
+        if any(EFFECTS[e].n_states for e in combo):
+            # a pair with internal states costs its singles' fits together and more (the
+            # states' substeps follow the faster of them): fitted where its signature
+            # predicts held-out data better than its better single's at all
+            if combo not in ee_fits:
+                screen(combo)
+            t_pair = _pair_screen_t(combo, ee_fits)
+            if t_pair < STATEFUL_SCREEN_T:
+                say(f"  {' + '.join(combo)}: its signature does not improve on its better "
+                    f"single's (t = {t_pair:.1f}); not fitted")
+                continue
         f = grey(combo, restored_on) if restored else grey(combo)
         if f is not None:
             fits.append(f)

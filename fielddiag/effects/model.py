@@ -39,6 +39,13 @@ MAX_STATE_RATE_PER_S = 2e4
 #: Internal states are held within +-STATE_LIMIT (far beyond any physical state: a
 #: normalised hysteresis lies in [-1, 1], a deflection within metres).
 STATE_LIMIT = 1e3
+#: RK4 is stable for a step h with h |lambda| up to 2.785 on the negative real axis.
+#: Where a state's own rate Jacobian exceeds it (a fit exploring a yield travel of
+#: microns, a steep Bouc-Wen exponent, a simulated motion far faster than the measured
+#: one), the discrete states follow the motion chaotically and their exact sensitivities
+#: grow without bound: the derivatives through the states are then taken by forward
+#: differences of the whole run instead (finite steps, as before the exact sensitivities).
+RK4_STABLE_STEP = 2.78
 
 
 def _force_many(r, rd, x2, theta, consts):  # pragma: no cover - numba template
@@ -142,10 +149,24 @@ def state_sensitivity_rate(dgz, dgp, sz, out):  # pragma: no cover - compiled
             out[k, j] = acc
 
 
+@njit(cache=True, nogil=True)
+def _row_norm(m):  # pragma: no cover - compiled
+    """Largest absolute row sum of a small matrix (bounds its eigenvalues' magnitude)."""
+    out = 0.0
+    for k in range(m.shape[0]):
+        acc = 0.0
+        for j in range(m.shape[1]):
+            acc += abs(m[k, j])
+        out = max(out, acc)
+    return out
+
+
 def _force_path_zs(r, rd, x2, z0, sz0, theta, consts, h, nsub):  # pragma: no cover - template
     """:func:`_force_path_z` with the derivatives through the states: the states'
     sensitivities to the parameters (``sz0`` at the first sample) integrated by the same RK4
-    steps, so that ``dp`` is the exact derivative of the discrete path's force."""
+    steps, so that ``dp`` is the exact derivative of the discrete path's force. The last
+    output is True where a step was beyond RK4's stability for the states
+    (:data:`RK4_STABLE_STEP`): the run stops there and nothing is to be used."""
     n = r.shape[0]
     nz = z0.shape[0]
     p = theta.shape[0]
@@ -176,6 +197,8 @@ def _force_path_zs(r, rd, x2, z0, sz0, theta, consts, h, nsub):  # pragma: no co
             zs[i, j] = z[j]
         a, b, c, d = model_force_z(r[i], rd[i], x2[i], z, theta, consts, dp[i], k1)
         model_state_partials(r[i], rd[i], x2[i], z, theta, consts, dfz, dgs, dgz, dgp)
+        if hs * _row_norm(dgz) > RK4_STABLE_STEP:
+            return f, ds, dp, zs, True
         for j in range(p):
             acc = dp[i, j]
             for k in range(nz):
@@ -203,6 +226,8 @@ def _force_path_zs(r, rd, x2, z0, sz0, theta, consts, h, nsub):  # pragma: no co
             if s > 0:
                 model_force_z(ra, va, xa, z, theta, consts, scratch, k1)
                 model_state_partials(ra, va, xa, z, theta, consts, dfz, dgs, dgz, dgp)
+                if hs * _row_norm(dgz) > RK4_STABLE_STEP:
+                    return f, ds, dp, zs, True
             state_sensitivity_rate(dgz, dgp, sz, s1)
             for j in range(nz):
                 zt[j] = z[j] + 0.5 * hs * k1[j]
@@ -210,6 +235,8 @@ def _force_path_zs(r, rd, x2, z0, sz0, theta, consts, h, nsub):  # pragma: no co
                     st[j, m] = sz[j, m] + 0.5 * hs * s1[j, m]
             model_force_z(rm, vm, xm, zt, theta, consts, scratch, k2)
             model_state_partials(rm, vm, xm, zt, theta, consts, dfz, dgs, dgz, dgp)
+            if hs * _row_norm(dgz) > RK4_STABLE_STEP:
+                return f, ds, dp, zs, True
             state_sensitivity_rate(dgz, dgp, st, s2)
             for j in range(nz):
                 zt[j] = z[j] + 0.5 * hs * k2[j]
@@ -217,6 +244,8 @@ def _force_path_zs(r, rd, x2, z0, sz0, theta, consts, h, nsub):  # pragma: no co
                     st[j, m] = sz[j, m] + 0.5 * hs * s2[j, m]
             model_force_z(rm, vm, xm, zt, theta, consts, scratch, k3)
             model_state_partials(rm, vm, xm, zt, theta, consts, dfz, dgs, dgz, dgp)
+            if hs * _row_norm(dgz) > RK4_STABLE_STEP:
+                return f, ds, dp, zs, True
             state_sensitivity_rate(dgz, dgp, st, s3)
             for j in range(nz):
                 zt[j] = z[j] + hs * k3[j]
@@ -224,6 +253,8 @@ def _force_path_zs(r, rd, x2, z0, sz0, theta, consts, h, nsub):  # pragma: no co
                     st[j, m] = sz[j, m] + hs * s3[j, m]
             model_force_z(rb, vb, xb, zt, theta, consts, scratch, k4)
             model_state_partials(rb, vb, xb, zt, theta, consts, dfz, dgs, dgz, dgp)
+            if hs * _row_norm(dgz) > RK4_STABLE_STEP:
+                return f, ds, dp, zs, True
             state_sensitivity_rate(dgz, dgp, st, s4)
             for j in range(nz):
                 z[j] += hs / 6.0 * (k1[j] + 2.0 * (k2[j] + k3[j]) + k4[j])
@@ -233,7 +264,7 @@ def _force_path_zs(r, rd, x2, z0, sz0, theta, consts, h, nsub):  # pragma: no co
                     z[j] = STATE_LIMIT if z[j] > 0 else -STATE_LIMIT
                     for m in range(p):
                         sz[j, m] = 0.0
-    return f, ds, dp, zs
+    return f, ds, dp, zs, False
 
 
 class ForceModel:
@@ -649,8 +680,9 @@ class ForceModel:
         the states too: where the effects give their state partials
         (:attr:`~fielddiag.effects.base.Effect.state_partials`) the states' sensitivities
         are integrated along with them (the exact derivative of the discrete path),
-        otherwise those columns of ``d_params`` are forward differences of the whole path
-        (one more integration per such parameter).
+        otherwise (or where the steps were beyond RK4's stability for the states,
+        :data:`RK4_STABLE_STEP`) those columns of ``d_params`` are forward differences of
+        the whole path (one more integration per such parameter).
 
         Parameters
         ----------
@@ -705,8 +737,11 @@ class ForceModel:
                 z0 = np.asarray(initial_states, float).ravel()
                 sz0 = np.zeros((self.n_states, self.n_params))
             exact = self.compile(__name__, "_force_path_zs", error_model="numpy")._force_path_zs
-            return exact(r, rdot, x2, np.ascontiguousarray(z0), np.ascontiguousarray(sz0),
-                         theta, self.constant_values(), h, nsub)
+            *out, unstable = exact(r, rdot, x2, np.ascontiguousarray(z0),
+                                   np.ascontiguousarray(sz0), theta, self.constant_values(),
+                                   h, nsub)
+            if not unstable:
+                return tuple(out)
         f, ds, dp, zs = run(theta)
         if state_jacobian:
             p0 = 0

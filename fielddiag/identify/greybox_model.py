@@ -379,11 +379,15 @@ class GreyBoxProblem:
             st["nuis"][0], st["nuis"][1], every, d.body_disp_m if every else _EMPTY,
             d.body_vel_mps if every else _EMPTY, st["r_static"])
 
-    def _simulate_session_zs(self, s: int, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _simulate_session_zs(self, s: int, z: np.ndarray
+                             ) -> tuple[np.ndarray, np.ndarray] | None:
         """Body acceleration of session ``s`` and its Jacobian ``(n, n_fit)`` with respect
         to the fitted vector (unfiltered, untrimmed) for a model with internal states whose
         effects give their state partials: the states' sensitivities integrated in the
-        same run (:func:`~fielddiag.identify.greybox_sensitivities._simulate_zs`)."""
+        same run (:func:`~fielddiag.identify.greybox_sensitivities._simulate_zs`). None
+        where the run's steps were beyond RK4's stability for the states (the exact
+        sensitivities of a chaotic discrete state grow without bound): the run stops
+        there."""
         st = self._stateful_setup(s, z)
         d, every, theta, mass, theta_u = st["d"], st["every"], st["theta"], st["mass"], \
             st["theta_u"]
@@ -410,12 +414,14 @@ class GreyBoxProblem:
         if d.band_hz is not None:  # r_static moves with the equilibrium
             sx_reset[:nt] = dx_eq[tcols]
         self.evaluations += 1
-        a, jac = _kernels_sens(self.model)._simulate_zs(
+        a, jac, unstable = _kernels_sens(self.model)._simulate_zs(
             d.wheel_disp_m, d.wheel_vel_mps, st["h"], st["nsub"], theta,
             self.model.constant_values(), st["m_tot"], st["load"], st["x_eq"], st["z_eq"],
             st["nuis"][0], st["nuis"][1], every, d.body_disp_m if every else _EMPTY,
             d.body_vel_mps if every else _EMPTY, st["r_static"], tcols, with_mass, s0,
             sx_reset)
+        if unstable:
+            return None
         pos = np.full(self.n_model, -1, dtype=int)
         pos[tcols] = np.arange(nt)
         nf = self.free_model.size
@@ -438,18 +444,15 @@ class GreyBoxProblem:
                            ) -> list[tuple[np.ndarray, np.ndarray | None]]:
         """:meth:`simulate` for models with internal states: the Jacobian from the states'
         sensitivities integrated in the same run where the effects give their state
-        partials, else by forward differences of the same discrete simulation (one more
-        run per fitted value; a session's initial-state columns re-run that session
-        only)."""
+        partials (and the steps were within RK4's stability for the states), else by
+        forward differences of the same discrete simulation (one more run per fitted value;
+        a session's initial-state columns re-run that session only)."""
         out = []
         exact = sens and self.model.has_state_partials
         for s, pr in enumerate(self._prep):
-            if exact:
-                a, jz = self._simulate_session_zs(s, z)
-            else:
-                a = self._simulate_session_z(s, z)
-                jz = None
-            if sens and not exact:
+            run = self._simulate_session_zs(s, z) if exact else None
+            a, jz = run if run is not None else (self._simulate_session_z(s, z), None)
+            if sens and jz is None:
                 jz = np.zeros((a.size, self.n_fit))
                 for j in range(self.nuis_index):
                     step = 1e-6 * abs(z[j]) if z[j] else 1e-9
