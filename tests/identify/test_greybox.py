@@ -164,6 +164,31 @@ def test_stateful_sensitivities_are_the_derivative_of_the_simulation(effects, mo
             assert np.linalg.norm(jac - jac_fd) / np.linalg.norm(jac) < 1e-5
 
 
+def test_a_chaotic_state_takes_its_jacobian_by_forward_differences(monkeypatch) -> None:
+    """A steep Bouc-Wen loop (exponent 6) saturating at the fastest travel rate: the
+    state's RK4 step is beyond its stability (h |d(dw/dt)/dw| up to 6 > 2.78), so its exact
+    sensitivities would grow without bound; the Jacobian is the forward-difference one,
+    to the last bit."""
+    from fielddiag.effects import ForceModel
+
+    eff = [make_effect("bouc_wen", hysteretic_force_n=120.0, yield_displacement_m=1e-3,
+                       yield_exponent=6.0)]
+    car = QuarterCarParams()
+    before, after = simulate_pair(car, added_mass_kg=60.0, seed=4, duration_s=12.0,
+                                  effects=eff)
+    model, values = model_from_sim(car, eff)
+    data = [GreyBoxData.from_drive(d, band_hz=(0.8, 30.0)) for d in (before, after)]
+    prob = GreyBoxProblem(model, data, body_mass_kg=400.0)
+    z = prob.pack(model.vector(values) / np.where(model.force_scaled, 400.0, 1.0), 400.0)
+    assert prob._simulate_session_zs(0, z) is None
+    r, jac = prob.residual_and_jacobian(z)
+    with monkeypatch.context() as mp:
+        mp.setattr(ForceModel, "has_state_partials", property(lambda _self: False))
+        r_fd, jac_fd = prob.residual_and_jacobian(z)
+    np.testing.assert_array_equal(r, r_fd)
+    np.testing.assert_array_equal(jac, jac_fd)
+
+
 def test_simulate_body_starts_from_static_equilibrium() -> None:
     """With the wheel still, the body stays put at the loaded equilibrium (a2 = 0)."""
     model = linear_model(coupling=True)
