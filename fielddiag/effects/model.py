@@ -39,13 +39,15 @@ MAX_STATE_RATE_PER_S = 2e4
 #: Internal states are held within +-STATE_LIMIT (far beyond any physical state: a
 #: normalised hysteresis lies in [-1, 1], a deflection within metres).
 STATE_LIMIT = 1e3
-#: RK4 is stable for a step h with h |lambda| up to 2.785 on the negative real axis.
-#: Where a state's own rate Jacobian exceeds it (a fit exploring a yield travel of
-#: microns, a steep Bouc-Wen exponent, a simulated motion far faster than the measured
-#: one), the discrete states follow the motion chaotically and their exact sensitivities
-#: grow without bound: the derivatives through the states are then taken by forward
-#: differences of the whole run instead (finite steps, as before the exact sensitivities).
-RK4_STABLE_STEP = 2.78
+#: Exact sensitivities of the internal states are used where no parameter's column says
+#: that a relative change of the parameter by 1e-6 (a forward difference's step) would move
+#: the output by more than its whole range (``|d out / d theta| |theta| <= 1e6 max|out|``;
+#: ~10 in a regular run). Beyond it the discrete states follow the motion chaotically (a
+#: fit exploring a yield travel of microns, a simulated body started far faster than the
+#: measured one: RK4 steps beyond the states' stability) and their exact sensitivities
+#: grow without bound (1e120 was met): the derivatives through the states are then taken
+#: by forward differences of the whole run instead (finite steps, as before them).
+SENSITIVITY_GROWTH_LIMIT = 1e6
 
 
 def _force_many(r, rd, x2, theta, consts):  # pragma: no cover - numba template
@@ -136,6 +138,34 @@ def _force_path_z(r, rd, x2, z0, theta, consts, h, nsub):  # pragma: no cover - 
     return f, ds, dp, zs
 
 
+def sensitivities_exploded(jac: np.ndarray, scale: np.ndarray, out: np.ndarray) -> bool:
+    """Whether exact sensitivities have grown without bound (see
+    :data:`SENSITIVITY_GROWTH_LIMIT`).
+
+    Parameters
+    ----------
+    jac : ndarray
+        ``(n, q)`` derivatives of ``out`` with respect to ``q`` parameters.
+    scale : ndarray
+        ``(q,)`` the parameters' sizes (their values; 1 where a value is 0).
+    out : ndarray
+        ``(n,)`` the output they are derivatives of.
+
+    Returns
+    -------
+    bool
+        True if a derivative is not finite or a column times its parameter's size exceeds
+        ``SENSITIVITY_GROWTH_LIMIT`` times the output's largest magnitude.
+    """
+    if not np.all(np.isfinite(jac)):
+        return True
+    if jac.size == 0:
+        return False
+    growth = np.max(np.abs(jac), axis=0) * np.abs(scale)
+    return bool(np.any(growth > SENSITIVITY_GROWTH_LIMIT * max(float(np.max(np.abs(out))),
+                                                                 1e-300)))
+
+
 @njit(cache=True, nogil=True)
 def state_sensitivity_rate(dgz, dgp, sz, out):  # pragma: no cover - compiled
     """``out = dgz @ sz + dgp``: d/dt of the states' sensitivities ``sz`` (n_states, q) to
@@ -149,24 +179,10 @@ def state_sensitivity_rate(dgz, dgp, sz, out):  # pragma: no cover - compiled
             out[k, j] = acc
 
 
-@njit(cache=True, nogil=True)
-def _row_norm(m):  # pragma: no cover - compiled
-    """Largest absolute row sum of a small matrix (bounds its eigenvalues' magnitude)."""
-    out = 0.0
-    for k in range(m.shape[0]):
-        acc = 0.0
-        for j in range(m.shape[1]):
-            acc += abs(m[k, j])
-        out = max(out, acc)
-    return out
-
-
 def _force_path_zs(r, rd, x2, z0, sz0, theta, consts, h, nsub):  # pragma: no cover - template
     """:func:`_force_path_z` with the derivatives through the states: the states'
     sensitivities to the parameters (``sz0`` at the first sample) integrated by the same RK4
-    steps, so that ``dp`` is the exact derivative of the discrete path's force. The last
-    output is True where a step was beyond RK4's stability for the states
-    (:data:`RK4_STABLE_STEP`): the run stops there and nothing is to be used."""
+    steps, so that ``dp`` is the exact derivative of the discrete path's force."""
     n = r.shape[0]
     nz = z0.shape[0]
     p = theta.shape[0]
@@ -197,8 +213,6 @@ def _force_path_zs(r, rd, x2, z0, sz0, theta, consts, h, nsub):  # pragma: no co
             zs[i, j] = z[j]
         a, b, c, d = model_force_z(r[i], rd[i], x2[i], z, theta, consts, dp[i], k1)
         model_state_partials(r[i], rd[i], x2[i], z, theta, consts, dfz, dgs, dgz, dgp)
-        if hs * _row_norm(dgz) > RK4_STABLE_STEP:
-            return f, ds, dp, zs, True
         for j in range(p):
             acc = dp[i, j]
             for k in range(nz):
@@ -226,8 +240,6 @@ def _force_path_zs(r, rd, x2, z0, sz0, theta, consts, h, nsub):  # pragma: no co
             if s > 0:
                 model_force_z(ra, va, xa, z, theta, consts, scratch, k1)
                 model_state_partials(ra, va, xa, z, theta, consts, dfz, dgs, dgz, dgp)
-                if hs * _row_norm(dgz) > RK4_STABLE_STEP:
-                    return f, ds, dp, zs, True
             state_sensitivity_rate(dgz, dgp, sz, s1)
             for j in range(nz):
                 zt[j] = z[j] + 0.5 * hs * k1[j]
@@ -235,8 +247,6 @@ def _force_path_zs(r, rd, x2, z0, sz0, theta, consts, h, nsub):  # pragma: no co
                     st[j, m] = sz[j, m] + 0.5 * hs * s1[j, m]
             model_force_z(rm, vm, xm, zt, theta, consts, scratch, k2)
             model_state_partials(rm, vm, xm, zt, theta, consts, dfz, dgs, dgz, dgp)
-            if hs * _row_norm(dgz) > RK4_STABLE_STEP:
-                return f, ds, dp, zs, True
             state_sensitivity_rate(dgz, dgp, st, s2)
             for j in range(nz):
                 zt[j] = z[j] + 0.5 * hs * k2[j]
@@ -244,8 +254,6 @@ def _force_path_zs(r, rd, x2, z0, sz0, theta, consts, h, nsub):  # pragma: no co
                     st[j, m] = sz[j, m] + 0.5 * hs * s2[j, m]
             model_force_z(rm, vm, xm, zt, theta, consts, scratch, k3)
             model_state_partials(rm, vm, xm, zt, theta, consts, dfz, dgs, dgz, dgp)
-            if hs * _row_norm(dgz) > RK4_STABLE_STEP:
-                return f, ds, dp, zs, True
             state_sensitivity_rate(dgz, dgp, st, s3)
             for j in range(nz):
                 zt[j] = z[j] + hs * k3[j]
@@ -253,8 +261,6 @@ def _force_path_zs(r, rd, x2, z0, sz0, theta, consts, h, nsub):  # pragma: no co
                     st[j, m] = sz[j, m] + hs * s3[j, m]
             model_force_z(rb, vb, xb, zt, theta, consts, scratch, k4)
             model_state_partials(rb, vb, xb, zt, theta, consts, dfz, dgs, dgz, dgp)
-            if hs * _row_norm(dgz) > RK4_STABLE_STEP:
-                return f, ds, dp, zs, True
             state_sensitivity_rate(dgz, dgp, st, s4)
             for j in range(nz):
                 z[j] += hs / 6.0 * (k1[j] + 2.0 * (k2[j] + k3[j]) + k4[j])
@@ -264,7 +270,7 @@ def _force_path_zs(r, rd, x2, z0, sz0, theta, consts, h, nsub):  # pragma: no co
                     z[j] = STATE_LIMIT if z[j] > 0 else -STATE_LIMIT
                     for m in range(p):
                         sz[j, m] = 0.0
-    return f, ds, dp, zs, False
+    return f, ds, dp, zs
 
 
 class ForceModel:
@@ -680,9 +686,9 @@ class ForceModel:
         the states too: where the effects give their state partials
         (:attr:`~fielddiag.effects.base.Effect.state_partials`) the states' sensitivities
         are integrated along with them (the exact derivative of the discrete path),
-        otherwise (or where the steps were beyond RK4's stability for the states,
-        :data:`RK4_STABLE_STEP`) those columns of ``d_params`` are forward differences of
-        the whole path (one more integration per such parameter).
+        otherwise (or where those sensitivities have grown without bound,
+        :data:`SENSITIVITY_GROWTH_LIMIT`) those columns of ``d_params`` are forward
+        differences of the whole path (one more integration per such parameter).
 
         Parameters
         ----------
@@ -737,11 +743,10 @@ class ForceModel:
                 z0 = np.asarray(initial_states, float).ravel()
                 sz0 = np.zeros((self.n_states, self.n_params))
             exact = self.compile(__name__, "_force_path_zs", error_model="numpy")._force_path_zs
-            *out, unstable = exact(r, rdot, x2, np.ascontiguousarray(z0),
-                                   np.ascontiguousarray(sz0), theta, self.constant_values(),
-                                   h, nsub)
-            if not unstable:
-                return tuple(out)
+            out = exact(r, rdot, x2, np.ascontiguousarray(z0), np.ascontiguousarray(sz0), theta,
+                        self.constant_values(), h, nsub)
+            if not sensitivities_exploded(out[2], np.where(theta != 0, theta, 1.0), out[0]):
+                return out
         f, ds, dp, zs = run(theta)
         if state_jacobian:
             p0 = 0

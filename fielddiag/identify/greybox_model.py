@@ -18,6 +18,7 @@ import numpy as np
 from scipy import signal
 
 from fielddiag.effects import ForceModel
+from fielddiag.effects.model import sensitivities_exploded
 from fielddiag.errors import FieldDiagError, InsufficientDataError
 from fielddiag.identify.greybox_data import GRAVITY_MPS2, GreyBoxData
 from fielddiag.identify.greybox_sensitivities import (
@@ -385,9 +386,8 @@ class GreyBoxProblem:
         to the fitted vector (unfiltered, untrimmed) for a model with internal states whose
         effects give their state partials: the states' sensitivities integrated in the
         same run (:func:`~fielddiag.identify.greybox_sensitivities._simulate_zs`). None
-        where the run's steps were beyond RK4's stability for the states (the exact
-        sensitivities of a chaotic discrete state grow without bound): the run stops
-        there."""
+        where those sensitivities have grown without bound (a chaotic discrete state,
+        :data:`~fielddiag.effects.model.SENSITIVITY_GROWTH_LIMIT`)."""
         st = self._stateful_setup(s, z)
         d, every, theta, mass, theta_u = st["d"], st["every"], st["theta"], st["mass"], \
             st["theta_u"]
@@ -414,13 +414,15 @@ class GreyBoxProblem:
         if d.band_hz is not None:  # r_static moves with the equilibrium
             sx_reset[:nt] = dx_eq[tcols]
         self.evaluations += 1
-        a, jac, unstable = _kernels_sens(self.model)._simulate_zs(
+        a, jac = _kernels_sens(self.model)._simulate_zs(
             d.wheel_disp_m, d.wheel_vel_mps, st["h"], st["nsub"], theta,
             self.model.constant_values(), st["m_tot"], st["load"], st["x_eq"], st["z_eq"],
             st["nuis"][0], st["nuis"][1], every, d.body_disp_m if every else _EMPTY,
             d.body_vel_mps if every else _EMPTY, st["r_static"], tcols, with_mass, s0,
             sx_reset)
-        if unstable:
+        size = np.concatenate([np.where(theta[tcols] != 0, theta[tcols], 1.0),
+                               [st["m_tot"]] if with_mass else [], _NUISANCE_SCALE])
+        if sensitivities_exploded(jac, size, a):
             return None
         pos = np.full(self.n_model, -1, dtype=int)
         pos[tcols] = np.arange(nt)

@@ -32,7 +32,7 @@ from numba import njit
 
 from fielddiag.effects import ForceModel
 from fielddiag.effects.compose import model_force, model_force_z, model_state_partials
-from fielddiag.effects.model import RK4_STABLE_STEP, STATE_LIMIT, _row_norm
+from fielddiag.effects.model import STATE_LIMIT
 from fielddiag.identify.greybox_data import GRAVITY_MPS2
 
 __all__ = ["simulate_body"]
@@ -278,10 +278,8 @@ def _simulate_zs(x1, v1, h, nsub, theta, consts, mass, load, x_eq, z_eq, dx0, dv
     velocity, the states) are taken with respect to the parameters ``tcols``, then the
     total mass if ``with_mass``, then the initial body offset and velocity (which act
     through ``s0`` only). At a reset of the body to the measured motion the position's
-    sensitivities become ``sx_reset`` (q,) and the velocity's 0. Returns a2 (n,), the
-    Jacobian J (n, q) and whether a step was beyond RK4's stability for the states
-    (:data:`~fielddiag.effects.model.RK4_STABLE_STEP`): then the run stops there and
-    neither a2 nor J is to be used.
+    sensitivities become ``sx_reset`` (q,) and the velocity's 0. Returns a2 (n,) and the
+    Jacobian J (n, q).
 
     The four RK4 stages are one loop body (not a stage function called four times: its
     many array arguments would be reference-counted at every call)."""
@@ -351,8 +349,6 @@ def _simulate_zs(x1, v1, h, nsub, theta, consts, mass, load, x_eq, z_eq, dx0, dv
                 f, fr, fv, fx = model_force_z(r, rd, xs, zt, theta, consts, dth, dzr)
                 a = (f - load) / mass
                 model_state_partials(r, rd, xs, zt, theta, consts, dfz, dgs, dgz, dgp)
-                if hs * _row_norm(dgz) > RK4_STABLE_STEP:
-                    return a_out, jac, True
                 kx[st] = vs
                 ka[st] = a
                 for j in range(nz):
@@ -401,7 +397,7 @@ def _simulate_zs(x1, v1, h, nsub, theta, consts, mass, load, x_eq, z_eq, dx0, dv
                     z[j] = STATE_LIMIT if z[j] > 0 else -STATE_LIMIT
                     for m in range(q):
                         s[2 + j, m] = 0.0
-    return a_out, jac, False
+    return a_out, jac
 
 
 def _kernels(model: ForceModel) -> Any:
