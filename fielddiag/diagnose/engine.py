@@ -387,10 +387,19 @@ def _equation_error_fit(
             cols.append((-dst[:, 0] / mt * (d["sess"] == k))[:, None])
         return e, np.hstack(cols)
 
+    # the residual and its Jacobian in one pass over the path, kept for the Jacobian call
+    # at the same point (with internal states the pass integrates them: the dear part)
+    last: dict[str, Any] = {}
+
+    def both(z):
+        if "z" not in last or not np.array_equal(last["z"], z):
+            last.update(z=np.array(z, copy=True), out=residual(z, fit, True))
+        return last["out"]
+
     sol = optimize.least_squares(
-        lambda z: residual(z, fit),
+        lambda z: both(z)[0],
         z0,
-        jac=lambda z: residual(z, fit, True)[1],
+        jac=lambda z: both(z)[1],
         bounds=(lo, hi),
         x_scale="jac",
         max_nfev=80,
