@@ -381,13 +381,13 @@ class GreyBoxProblem:
             d.body_vel_mps if every else _EMPTY, st["r_static"])
 
     def _simulate_session_zs(self, s: int, z: np.ndarray
-                             ) -> tuple[np.ndarray, np.ndarray] | None:
+                             ) -> tuple[np.ndarray, np.ndarray | None]:
         """Body acceleration of session ``s`` and its Jacobian ``(n, n_fit)`` with respect
         to the fitted vector (unfiltered, untrimmed) for a model with internal states whose
         effects give their state partials: the states' sensitivities integrated in the
-        same run (:func:`~fielddiag.identify.greybox_sensitivities._simulate_zs`). None
-        where those sensitivities have grown without bound (a chaotic discrete state,
-        :data:`~fielddiag.effects.model.SENSITIVITY_GROWTH_LIMIT`)."""
+        same run (:func:`~fielddiag.identify.greybox_sensitivities._simulate_zs`). The
+        Jacobian is None where those sensitivities have grown without bound (a chaotic
+        discrete state, :data:`~fielddiag.effects.model.SENSITIVITY_GROWTH_LIMIT`)."""
         st = self._stateful_setup(s, z)
         d, every, theta, mass, theta_u = st["d"], st["every"], st["theta"], st["mass"], \
             st["theta_u"]
@@ -423,7 +423,7 @@ class GreyBoxProblem:
         size = np.concatenate([np.where(theta[tcols] != 0, theta[tcols], 1.0),
                                [st["m_tot"]] if with_mass else [], _NUISANCE_SCALE])
         if sensitivities_exploded(jac, size, a):
-            return None
+            return a, None
         pos = np.full(self.n_model, -1, dtype=int)
         pos[tcols] = np.arange(nt)
         nf = self.free_model.size
@@ -452,8 +452,9 @@ class GreyBoxProblem:
         out = []
         exact = sens and self.model.has_state_partials
         for s, pr in enumerate(self._prep):
-            run = self._simulate_session_zs(s, z) if exact else None
-            a, jz = run if run is not None else (self._simulate_session_z(s, z), None)
+            # (the acceleration is the same either way, operation for operation)
+            a, jz = self._simulate_session_zs(s, z) if exact else (
+                self._simulate_session_z(s, z), None)
             if sens and jz is None:
                 jz = np.zeros((a.size, self.n_fit))
                 for j in range(self.nuis_index):
