@@ -9,7 +9,14 @@ that numba's compiled kernels come from the on-disk cache as they do for a user.
 machine's load average is printed beside each time: the figure is only comparable on an
 otherwise idle machine (2 cores).
 
+With ``--steps`` the diagnosis's progress lines are printed with the time each began (where
+the time goes: screening, single fits, pairs, data hypotheses, ride height). Grey-box fits
+of effects with internal states take their Jacobian from the states' sensitivity
+equations (one run per iteration), a pair with one is fitted where its signature adds to
+its better single's (docs/diagnosis.md, step 4).
+
 Usage: python benchmarks/bench_diagnose_speed.py [--cases linear,coulomb_friction,bouc_wen]
+                                                 [--steps]
 """
 
 from __future__ import annotations
@@ -50,6 +57,8 @@ def _drives(effects):
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--cases", default=",".join(CASES))
+    ap.add_argument("--steps", action="store_true",
+                    help="print each step of the diagnosis with the time it began")
     args = ap.parse_args(argv)
     from fielddiag.diagnose.engine import diagnose_drives
     from fielddiag.effects import diagnosis_effects
@@ -63,7 +72,11 @@ def main(argv: list[str] | None = None) -> int:
         drives = _drives(CASES[name])
         load0 = os.getloadavg()[0]
         t0 = time.perf_counter()
-        out = diagnose_drives(drives).to_dict()
+
+        def step(msg: str, _t0: float = t0) -> None:
+            print(f"      {time.perf_counter() - _t0:6.1f} s  {msg}", flush=True)
+
+        out = diagnose_drives(drives, progress=step if args.steps else None).to_dict()
         wall = time.perf_counter() - t0
         worst = max(worst, wall)
         named = ", ".join(f["effect"] for f in out["findings"]) or "-"

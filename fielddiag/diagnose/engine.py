@@ -375,7 +375,7 @@ def _equation_error_fit(
         th, m, r0 = split(z)
         off = r0[d["sess"]]
         f, dst, dth = _path_force(model, d["r"] + off, d["v"], d["x"], th, d["sess"],
-                                  d["fs"])
+                                  d["fs"], want_jac)
         g = GRAVITY if absolute else 0.0
         mt = m + d["dm"]
         e = d["a"] + (d["dm"] * g - f) / mt
@@ -388,10 +388,19 @@ def _equation_error_fit(
             cols.append((-dst[:, 0] / mt * (d["sess"] == k))[:, None])
         return e, np.hstack(cols)
 
+    # the residual and its Jacobian in one pass over the path, kept for the Jacobian call
+    # at the same point (with internal states the pass integrates them: the dear part)
+    last: dict[str, Any] = {}
+
+    def both(z):
+        if "z" not in last or not np.array_equal(last["z"], z):
+            last.update(z=np.array(z, copy=True), out=residual(z, fit, True))
+        return last["out"]
+
     sol = optimize.least_squares(
-        lambda z: residual(z, fit),
+        lambda z: both(z)[0],
         z0,
-        jac=lambda z: residual(z, fit, True)[1],
+        jac=lambda z: both(z)[1],
         bounds=(lo, hi),
         x_scale="jac",
         max_nfev=80,
@@ -404,10 +413,10 @@ def _equation_error_fit(
 
 
 def _path_force(model: ForceModel, r: np.ndarray, rdot: np.ndarray, x2: np.ndarray,
-                th: np.ndarray, session: np.ndarray, rate_hz: np.ndarray
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                th: np.ndarray, session: np.ndarray, rate_hz: np.ndarray,
+                state_jacobian: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The model's force on stacked drives; internal states integrated per drive (from
-    rest at its first sample)."""
+    rest at its first sample), their parameters' derivatives only if ``state_jacobian``."""
     if model.n_states == 0:
         return model.force(r, rdot, x2, th)
     f = np.empty(r.size)
@@ -417,7 +426,8 @@ def _path_force(model: ForceModel, r: np.ndarray, rdot: np.ndarray, x2: np.ndarr
     for sl in np.split(np.arange(r.size), bounds):
         if sl.size == 0:
             continue
-        a, b, c, _ = model.force_along_path(r[sl], rdot[sl], x2[sl], th, float(rate_hz[sl[0]]))
+        a, b, c, _ = model.force_along_path(r[sl], rdot[sl], x2[sl], th, float(rate_hz[sl[0]]),
+                                            state_jacobian=state_jacobian)
         f[sl], dst[sl], dth[sl] = a, b, c
     return f, dst, dth
 
@@ -914,8 +924,30 @@ def _departure(
 
 
 #: An effect with internal states gets the full (grey-box) fit only where its equation-
-#: error signature beats the linear model on held-out data by this paired-block t.
+#: error signature beats the linear model on held-out data by this paired-block t (and a
+#: pair with one only where its signature beats its better single's by it).
 STATEFUL_SCREEN_T = 1.0
+#: ... and where the pair's signature gains over its better single's at least this share
+#: of what the other effect's signature gains alone over the linear model's (held-out
+#: mean square): 0.4 % for Dahl and Bouc-Wen hysteresis together, two models of one loop.
+STATEFUL_PAIR_MIN_SHARE = 0.1
+
+
+def _pair_screen(combo: tuple[str, ...], ee_fits: dict, ee_base: _EquationErrorFit
+                 ) -> tuple[float, float]:
+    """How a pair's equation-error signature improves on its better single's on held-out
+    data: the paired-block t, and the gain in mean square as a share of the other single's
+    own gain over the linear model (nan, nan when one of them could not be screened)."""
+    pair = ee_fits.get(combo)
+    singles = [ee_fits.get((e,)) for e in combo]
+    if pair is None or any(s is None for s in singles):
+        return float("nan"), float("nan")
+    mse = [float(np.mean(s.residual_validation**2)) for s in singles]
+    best, other = (singles[0], mse[1]) if mse[0] <= mse[1] else (singles[1], mse[0])
+    t = paired_block_t(best.residual_validation, pair.residual_validation)
+    own = float(np.mean(ee_base.residual_validation**2)) - other
+    gain = min(mse) - float(np.mean(pair.residual_validation**2))
+    return t, gain / own if own > 0 else float("inf")
 
 
 #: Structure left in the chosen model's residual is reported as ``unexplained`` only when
@@ -1259,6 +1291,20 @@ def diagnose_drives(
         for a, b in itertools.combinations(useful, 2)
     ]
     for combo, restored in pairs[:max_pair_fits]:
+        if any(EFFECTS[e].n_states for e in combo):
+            # a pair with internal states costs its singles' fits together and more (the
+            # states' substeps follow the faster of them): fitted where its signature
+            # predicts held-out data better than its better single's, by a material part
+            # of what the other effect explains alone (two hysteresis models describe
+            # the same loop: the second adds nothing)
+            if combo not in ee_fits:
+                screen(combo)
+            t_pair, share = _pair_screen(combo, ee_fits, ee_base)
+            if t_pair < STATEFUL_SCREEN_T or share < STATEFUL_PAIR_MIN_SHARE:
+                say(f"  {' + '.join(combo)}: its signature adds {100 * share:.1f} % of what "
+                    f"the second effect explains alone to its better single's (t = "
+                    f"{t_pair:.1f}); not fitted")
+                continue
         f = grey(combo, restored_on) if restored else grey(combo)
         if f is not None:
             fits.append(f)

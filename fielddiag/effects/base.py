@@ -27,8 +27,10 @@ parameter values, an effect to simulate (``CoulombFriction(friction_force_n=80.0
 Effects with an internal state (hysteresis: Dahl, Bouc-Wen; a series top mount) set
 ``n_states`` > 0; their kernel then also receives the state ``z`` and writes its rate
 ``dz/dt`` (see :class:`Effect`). The simulator, the grey-box fit and rig mode integrate
-the states along the motion (:meth:`ForceModel.force_along_path`); the fit takes the
-derivatives through a state by forward differences of the same discrete simulation.
+the states along the motion (:meth:`ForceModel.force_along_path`); the fit propagates
+the states' sensitivities through the same RK4 steps, from the partial derivatives its
+``state_partials`` kernel gives (forward differences of the whole simulation for an
+effect without one).
 """
 
 from __future__ import annotations
@@ -211,6 +213,19 @@ class Effect:
             kernel(r, rdot, x2, z, p, c, dp, dz) -> (F, dF/dr, dF/drdot, dF/dx2)
 
         where ``z`` holds the effect's states and ``dz`` receives ``dz/dt``.
+    state_partials : numba function or None
+        Effects with internal states: the partial derivatives the sensitivity equations
+        of the states need (the exact Jacobian of the grey-box fit and of
+        :meth:`~fielddiag.effects.model.ForceModel.force_along_path`)::
+
+            state_partials(r, rdot, x2, z, p, c, dfz, dgs, dgz, dgp)
+
+        writing ``dF/dz`` into ``dfz`` ``(n_states,)``, and the derivatives of the state
+        rates ``g = dz/dt`` with respect to ``(r, rdot, x2)`` into ``dgs``
+        ``(n_states, 3)``, to the states into ``dgz`` ``(n_states, n_states)`` and to the
+        parameters into ``dgp`` ``(n_states, n_params)`` (every entry written at every
+        call). None: those derivatives are taken by forward differences of the whole
+        simulation (one more run per parameter).
 
     Parameters
     ----------
@@ -245,6 +260,7 @@ class Effect:
     diagnosable: ClassVar[bool] = False
     diagnosis_rank: ClassVar[int] = 100
     n_states: ClassVar[int] = 0
+    state_partials: ClassVar[Any] = None
     description: ClassVar[str] = ""
     kernel: ClassVar[Any]
 

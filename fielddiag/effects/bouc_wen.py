@@ -15,16 +15,35 @@ from fielddiag.effects.hysteretic_spring import yield_travel_start_m
 @njit(cache=True, nogil=True)
 def _bouc_wen(r, rd, x2, z, p, c, dp, dz):  # pragma: no cover - compiled
     # state z[0] = w in [-1, 1]; dw/dt = (rdot / x_y) (1 - |w|^n (1 + sgn(rdot w)) / 2)
+    # (a select, not a branch: the same numbers, and numba keeps the callers' loops lean)
     w = z[0]
     aw = abs(w)
-    if rd * w > 0.0:
-        dz[0] = rd / p[1] * (1.0 - aw ** p[2])
-    else:
-        dz[0] = rd / p[1]
+    on = 1.0 if rd * w > 0.0 else 0.0
+    dz[0] = rd / p[1] * (1.0 - on * aw ** p[2])
     dp[0] = -w
-    dp[1] = 0.0  # through the state (forward differences in the fit)
+    dp[1] = 0.0  # through the state (its sensitivity: _bouc_wen_partials)
     dp[2] = 0.0
     return -p[0] * w, 0.0, 0.0, 0.0
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _bouc_wen_partials(r, rd, x2, z, p, c, dfz, dgs, dgz, dgp):  # pragma: no cover - compiled
+    # F = -F_h w;  g = dw/dt = (rdot / x_y) (1 - on |w|^n), on = [rdot w > 0] as in
+    # _bouc_wen. Written without branches (selects only): a branch around a division
+    # keeps numba from pruning the reference counts of the callers' array views
+    w = z[0]
+    aw = abs(w)
+    on = 1.0 if rd * w > 0.0 else 0.0
+    wn = on * aw ** p[2]
+    u = rd / p[1]
+    dfz[0] = -p[0]
+    dgs[0, 0] = 0.0
+    dgs[0, 1] = (1.0 - wn) / p[1]
+    dgs[0, 2] = 0.0
+    dgz[0, 0] = -u * p[2] * wn / (w if w != 0.0 else 1.0)  # d|w|^n/dw = n |w|^n / w
+    dgp[0, 0] = 0.0
+    dgp[0, 1] = -u * (1.0 - wn) / p[1]
+    dgp[0, 2] = -u * wn * math.log(aw if aw > 0.0 else 1.0)
 
 
 def _loading_curve(r: float, yield_m: float, exponent: float) -> float:
@@ -76,6 +95,7 @@ class BoucWen(Effect):
                   default=2.0),
     )
     kernel = _bouc_wen
+    state_partials = _bouc_wen_partials
 
     def static_states(self, r: float, values: Sequence[float]) -> np.ndarray:
         """``w`` reached when loaded slowly and monotonically from r = 0 to ``r``.

@@ -3,9 +3,12 @@
 The one place where source is generated. A *template* is a plain function (no decorator)
 in some module that calls the global ``model_force(r, rdot, x2, theta, consts, dtheta)``
 (memoryless models) or ``model_force_z(r, rdot, x2, z, theta, consts, dtheta, dz)`` (with
-internal states). For a combination of effect classes a small module is generated: the
-effects' kernels imported, ``model_force``/``model_force_z`` written as the sum of the
-kernel calls on slices of the parameter, constant and state vectors, then the templates'
+internal states; ``model_state_partials(r, rdot, x2, z, theta, consts, dfz, dgs, dgz, dgp)``
+gives the partial derivatives the states' sensitivity equations need, see
+:attr:`~fielddiag.effects.base.Effect.state_partials`). For a combination of effect classes
+a small module is generated: the effects' kernels imported, ``model_force``/``model_force_z``
+written as the sum of the kernel calls on slices of the parameter, constant and state
+vectors (``model_state_partials`` as the calls on their blocks), then the templates'
 source, each under ``@njit(cache=True, nogil=True)``, with the template module's other
 globals. It is written to the kernel cache directory under a name that hashes the
 generator, the effect classes and the source files involved, and imported, so numba's
@@ -39,12 +42,12 @@ from typing import Any
 
 from fielddiag.effects.base import Effect
 
-__all__ = ["compile_templates", "model_force", "model_force_z"]
+__all__ = ["compile_templates", "model_force", "model_force_z", "model_state_partials"]
 
 _BOUND_CACHE: dict[tuple[Any, ...], Any] = {}
 #: Bump when the generated source changes shape.
-_GENERATOR_VERSION = "2"
-_FORCE_NAMES = ("model_force", "model_force_z")
+_GENERATOR_VERSION = "3"
+_FORCE_NAMES = ("model_force", "model_force_z", "model_state_partials")
 
 
 def model_force(r, rd, x2, th, cs, dth):  # pragma: no cover - placeholder
@@ -99,8 +102,61 @@ def model_force_z(r, rd, x2, z, th, cs, dth, dz):  # pragma: no cover - placehol
     raise NotImplementedError("templates are compiled per model by compile_templates")
 
 
+def model_state_partials(r, rd, x2, z, th, cs, dfz, dgs, dgz, dgp):  # pragma: no cover
+    """Placeholder for the templates: the partial derivatives of the force and of the
+    states' rates (models with internal states whose effects all give them).
+
+    Parameters
+    ----------
+    r, rd, x2 : float
+        Suspension extension [m], its rate [m/s], body position [m].
+    z : ndarray
+        The effects' internal states.
+    th, cs : ndarray
+        The model's parameter and constant vectors.
+    dfz, dgs, dgz, dgp : ndarray
+        Receive dF/dz ``(n_states,)`` and the derivatives of dz/dt with respect to
+        ``(r, rdot, x2)`` ``(n_states, 3)``, the states ``(n_states, n_states)`` and the
+        parameters ``(n_states, n_params)``; blocks between different effects are not
+        written (the caller keeps them zero).
+
+    Raises
+    ------
+    NotImplementedError
+        Always: call it only from a template compiled by :func:`compile_templates`.
+    """
+    raise NotImplementedError("templates are compiled per model by compile_templates")
+
+
+def _partials_source(classes: tuple[type[Effect], ...]) -> tuple[list[str], list[str]]:
+    """(import lines, body lines) of ``model_state_partials``."""
+    imports: list[str] = []
+    body: list[str] = []
+    p0 = c0 = s0 = 0
+    complete = True
+    for i, cls in enumerate(classes):
+        p1, c1, s1 = p0 + len(cls.params), c0 + len(cls.constants), s0 + cls.n_states
+        if cls.n_states:
+            if cls.state_partials is None:
+                complete = False
+            else:
+                fn = cls.state_partials.py_func
+                imports.append(f"from {fn.__module__} import {fn.__name__} as s{i}")
+                body.append(f"    s{i}(r, rd, x2, z[{s0}:{s1}], th[{p0}:{p1}], cs[{c0}:{c1}], "
+                            f"dfz[{s0}:{s1}], dgs[{s0}:{s1}], dgz[{s0}:{s1}, {s0}:{s1}], "
+                            f"dgp[{s0}:{s1}, {p0}:{p1}])")
+        p0, c0, s0 = p1, c1, s1
+    lines = ["@njit(cache=CACHE, nogil=True)",
+             "def model_state_partials(r, rd, x2, z, th, cs, dfz, dgs, dgz, dgp):"]
+    if not complete or not body:
+        return [], [*lines, "    raise NotImplementedError('no state partials for this model')",
+                    "", ""]
+    return imports, [*lines, *body, "    return 0", "", ""]
+
+
 def _force_source(classes: tuple[type[Effect], ...]) -> tuple[list[str], list[str]]:
-    """(import lines, body lines) of ``model_force`` and ``model_force_z``."""
+    """(import lines, body lines) of ``model_force``, ``model_force_z`` and
+    ``model_state_partials``."""
     imports: list[str] = []
     calls: list[tuple[str, str]] = []  # (call without states, call with states)
     p0 = c0 = s0 = 0
@@ -116,7 +172,8 @@ def _force_source(classes: tuple[type[Effect], ...]) -> tuple[list[str], list[st
             call = f"k{i}(r, rd, x2, {sl})"
             calls.append((call, call))
         p0, c0, s0 = p1, c1, s1
-    lines: list[str] = []
+    p_imports, lines = _partials_source(classes)
+    imports += p_imports
     for name, args, pick in (("model_force", "r, rd, x2, th, cs, dth", 0),
                              ("model_force_z", "r, rd, x2, z, th, cs, dth, dz", 1)):
         lines += ["@njit(cache=CACHE, nogil=True)", f"def {name}({args}):"]
@@ -190,7 +247,8 @@ def compile_templates(classes: tuple[type[Effect], ...], module_name: str,
     Returns
     -------
     namespace
-        The compiled templates (and ``model_force``, ``model_force_z``) by name, cached in
+        The compiled templates (and ``model_force``, ``model_force_z``,
+        ``model_state_partials``) by name, cached in
         memory and on disk per combination of effect classes.
     """
     key = (classes, module_name, names, error_model)
@@ -252,6 +310,8 @@ def compile_templates(classes: tuple[type[Effect], ...], module_name: str,
     if result is None:
         space: dict[str, Any] = {"__name__": f"fielddiag_kernel_{module_name}"}
         space.update({f"k{i}": c.kernel for i, c in enumerate(classes)})
+        space.update({f"s{i}": c.state_partials for i, c in enumerate(classes)
+                      if c.state_partials is not None})
         body = source(False).replace("\n".join(imports), "")
         exec(compile(body, f"<fielddiag kernel {module_name} {classes}>", "exec"), space)
         result = SimpleNamespace(**{n: space[n] for n in (*names, *_FORCE_NAMES)})

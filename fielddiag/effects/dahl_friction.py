@@ -19,8 +19,23 @@ def _dahl_friction(r, rd, x2, z, p, c, dp, dz):  # pragma: no cover - compiled
     level = p[0] + p[1] * r
     dp[0] = -w
     dp[1] = -r * w
-    dp[2] = 0.0  # through the state (forward differences in the fit)
+    dp[2] = 0.0  # through the state (its sensitivity: _dahl_friction_partials)
     return -level * w, -p[1] * w, 0.0, 0.0
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _dahl_friction_partials(r, rd, x2, z, p, c, dfz, dgs, dgz, dgp):  # pragma: no cover
+    # F = -(F_f + g r) w;  dw/dt = (rdot - |rdot| w) / x_y
+    w = z[0]
+    sg = 1.0 if rd > 0.0 else -1.0 if rd < 0.0 else 0.0
+    dfz[0] = -(p[0] + p[1] * r)
+    dgs[0, 0] = 0.0
+    dgs[0, 1] = (1.0 - sg * w) / p[2]
+    dgs[0, 2] = 0.0
+    dgz[0, 0] = -abs(rd) / p[2]
+    dgp[0, 0] = 0.0
+    dgp[0, 1] = 0.0
+    dgp[0, 2] = -(rd - abs(rd) * w) / (p[2] * p[2])
 
 
 @register_effect
@@ -53,6 +68,7 @@ class DahlFriction(Effect):
                   valid_low=0.0, valid_strict=True, default=1e-4),
     )
     kernel = _dahl_friction
+    state_partials = _dahl_friction_partials
 
     def static_states(self, r: float, values: Sequence[float]) -> np.ndarray:
         """``w`` reached when loaded slowly and monotonically from r = 0 to ``r``.

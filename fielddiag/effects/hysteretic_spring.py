@@ -16,8 +16,20 @@ def _hysteretic_spring(r, rd, x2, z, p, c, dp, dz):  # pragma: no cover - compil
     # state z[0]: the hidden deflection; dz/dt = rdot - |rdot| z / z_y
     dz[0] = rd - abs(rd) * z[0] / p[1]
     dp[0] = -z[0]
-    dp[1] = 0.0  # through the state only (not propagated: no sensitivity of z yet)
+    dp[1] = 0.0  # through the state only (its sensitivity: _hysteretic_spring_partials)
     return -p[0] * z[0], 0.0, 0.0, 0.0
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _hysteretic_spring_partials(r, rd, x2, z, p, c, dfz, dgs, dgz, dgp):  # pragma: no cover
+    # F = -k z;  g = dz/dt = rdot - |rdot| z / z_y
+    dfz[0] = -p[0]
+    dgs[0, 0] = 0.0
+    dgs[0, 1] = 1.0 - (1.0 if rd > 0.0 else -1.0 if rd < 0.0 else 0.0) * z[0] / p[1]
+    dgs[0, 2] = 0.0
+    dgz[0, 0] = -abs(rd) / p[1]
+    dgp[0, 0] = 0.0
+    dgp[0, 1] = abs(rd) * z[0] / (p[1] * p[1])
 
 
 def yield_travel_start_m(r_m: np.ndarray) -> float:
@@ -63,6 +75,7 @@ class HystereticSpring(Effect):
                   valid_low=0.0, valid_strict=True),
     )
     kernel = _hysteretic_spring
+    state_partials = _hysteretic_spring_partials
 
     def static_states(self, r: float, values: Sequence[float]) -> np.ndarray:
         """``z`` reached when loaded slowly and monotonically from r = 0 to ``r``.

@@ -17,9 +17,15 @@ from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
+from numba import njit
 
 from fielddiag.effects.base import EFFECTS, Effect, ParamSpec, get_effect
-from fielddiag.effects.compose import compile_templates, model_force, model_force_z
+from fielddiag.effects.compose import (
+    compile_templates,
+    model_force,
+    model_force_z,
+    model_state_partials,
+)
 from fielddiag.errors import FieldDiagError
 
 __all__ = ["ForceModel", "linear_model", "model_from_sim", "split_shape"]
@@ -33,6 +39,15 @@ MAX_STATE_RATE_PER_S = 2e4
 #: Internal states are held within +-STATE_LIMIT (far beyond any physical state: a
 #: normalised hysteresis lies in [-1, 1], a deflection within metres).
 STATE_LIMIT = 1e3
+#: Exact sensitivities of the internal states are used where no parameter's column says
+#: that a relative change of the parameter by 1e-6 (a forward difference's step) would move
+#: the output by more than its whole range (``|d out / d theta| |theta| <= 1e6 max|out|``;
+#: ~10 in a regular run). Beyond it the discrete states follow the motion chaotically (a
+#: fit exploring a yield travel of microns, a simulated body started far faster than the
+#: measured one: RK4 steps beyond the states' stability) and their exact sensitivities
+#: grow without bound (1e120 was met): the derivatives through the states are then taken
+#: by forward differences of the whole run instead (finite steps, as before them).
+SENSITIVITY_GROWTH_LIMIT = 1e6
 
 
 def _force_many(r, rd, x2, theta, consts):  # pragma: no cover - numba template
@@ -120,6 +135,141 @@ def _force_path_z(r, rd, x2, z0, theta, consts, h, nsub):  # pragma: no cover - 
                 # a fit exploring a state rate beyond MAX_STATE_RATE_PER_S: keep it finite
                 if not abs(z[j]) <= STATE_LIMIT:
                     z[j] = STATE_LIMIT if z[j] > 0 else -STATE_LIMIT
+    return f, ds, dp, zs
+
+
+def sensitivities_exploded(jac: np.ndarray, scale: np.ndarray, out: np.ndarray) -> bool:
+    """Whether exact sensitivities have grown without bound (see
+    :data:`SENSITIVITY_GROWTH_LIMIT`).
+
+    Parameters
+    ----------
+    jac : ndarray
+        ``(n, q)`` derivatives of ``out`` with respect to ``q`` parameters.
+    scale : ndarray
+        ``(q,)`` the parameters' sizes (their values; 1 where a value is 0).
+    out : ndarray
+        ``(n,)`` the output they are derivatives of.
+
+    Returns
+    -------
+    bool
+        True if a derivative is not finite or a column times its parameter's size exceeds
+        ``SENSITIVITY_GROWTH_LIMIT`` times the output's largest magnitude.
+    """
+    if not np.all(np.isfinite(jac)):
+        return True
+    if jac.size == 0:
+        return False
+    growth = np.max(np.abs(jac), axis=0) * np.abs(scale)
+    return bool(np.any(growth > SENSITIVITY_GROWTH_LIMIT * max(float(np.max(np.abs(out))),
+                                                                 1e-300)))
+
+
+@njit(cache=True, nogil=True)
+def state_sensitivity_rate(dgz, dgp, sz, out):  # pragma: no cover - compiled
+    """``out = dgz @ sz + dgp``: d/dt of the states' sensitivities ``sz`` (n_states, q) to
+    ``q`` parameters along a given path (``dgz``: d(dz/dt)/dz, ``dgp``: d(dz/dt)/dtheta)."""
+    nz, q = sz.shape
+    for k in range(nz):
+        for j in range(q):
+            acc = dgp[k, j]
+            for m in range(nz):
+                acc += dgz[k, m] * sz[m, j]
+            out[k, j] = acc
+
+
+def _force_path_zs(r, rd, x2, z0, sz0, theta, consts, h, nsub):  # pragma: no cover - template
+    """:func:`_force_path_z` with the derivatives through the states: the states'
+    sensitivities to the parameters (``sz0`` at the first sample) integrated by the same RK4
+    steps, so that ``dp`` is the exact derivative of the discrete path's force."""
+    n = r.shape[0]
+    nz = z0.shape[0]
+    p = theta.shape[0]
+    f = np.empty(n)
+    ds = np.empty((n, 3))
+    dp = np.empty((n, p))
+    zs = np.empty((n, nz))
+    z = z0.copy()
+    sz = sz0.copy()
+    zt = np.empty(nz)
+    st = np.empty((nz, p))
+    k1 = np.empty(nz)
+    k2 = np.empty(nz)
+    k3 = np.empty(nz)
+    k4 = np.empty(nz)
+    s1 = np.empty((nz, p))
+    s2 = np.empty((nz, p))
+    s3 = np.empty((nz, p))
+    s4 = np.empty((nz, p))
+    dfz = np.zeros(nz)
+    dgs = np.zeros((nz, 3))
+    dgz = np.zeros((nz, nz))
+    dgp = np.zeros((nz, p))
+    scratch = np.empty(max(p, 1))
+    hs = h / nsub
+    for i in range(n):
+        for j in range(nz):
+            zs[i, j] = z[j]
+        a, b, c, d = model_force_z(r[i], rd[i], x2[i], z, theta, consts, dp[i], k1)
+        model_state_partials(r[i], rd[i], x2[i], z, theta, consts, dfz, dgs, dgz, dgp)
+        for j in range(p):
+            acc = dp[i, j]
+            for k in range(nz):
+                acc += dfz[k] * sz[k, j]
+            dp[i, j] = acc
+        f[i] = a
+        ds[i, 0] = b
+        ds[i, 1] = c
+        ds[i, 2] = d
+        if i == n - 1:
+            break
+        for s in range(nsub):
+            w0 = s / nsub
+            wm = (s + 0.5) / nsub
+            w1 = (s + 1.0) / nsub
+            ra = r[i] + w0 * (r[i + 1] - r[i])
+            va = rd[i] + w0 * (rd[i + 1] - rd[i])
+            xa = x2[i] + w0 * (x2[i + 1] - x2[i])
+            rm = r[i] + wm * (r[i + 1] - r[i])
+            vm = rd[i] + wm * (rd[i + 1] - rd[i])
+            xm = x2[i] + wm * (x2[i + 1] - x2[i])
+            rb = r[i] + w1 * (r[i + 1] - r[i])
+            vb = rd[i] + w1 * (rd[i + 1] - rd[i])
+            xb = x2[i] + w1 * (x2[i + 1] - x2[i])
+            if s > 0:
+                model_force_z(ra, va, xa, z, theta, consts, scratch, k1)
+                model_state_partials(ra, va, xa, z, theta, consts, dfz, dgs, dgz, dgp)
+            state_sensitivity_rate(dgz, dgp, sz, s1)
+            for j in range(nz):
+                zt[j] = z[j] + 0.5 * hs * k1[j]
+                for m in range(p):
+                    st[j, m] = sz[j, m] + 0.5 * hs * s1[j, m]
+            model_force_z(rm, vm, xm, zt, theta, consts, scratch, k2)
+            model_state_partials(rm, vm, xm, zt, theta, consts, dfz, dgs, dgz, dgp)
+            state_sensitivity_rate(dgz, dgp, st, s2)
+            for j in range(nz):
+                zt[j] = z[j] + 0.5 * hs * k2[j]
+                for m in range(p):
+                    st[j, m] = sz[j, m] + 0.5 * hs * s2[j, m]
+            model_force_z(rm, vm, xm, zt, theta, consts, scratch, k3)
+            model_state_partials(rm, vm, xm, zt, theta, consts, dfz, dgs, dgz, dgp)
+            state_sensitivity_rate(dgz, dgp, st, s3)
+            for j in range(nz):
+                zt[j] = z[j] + hs * k3[j]
+                for m in range(p):
+                    st[j, m] = sz[j, m] + hs * s3[j, m]
+            model_force_z(rb, vb, xb, zt, theta, consts, scratch, k4)
+            model_state_partials(rb, vb, xb, zt, theta, consts, dfz, dgs, dgz, dgp)
+            state_sensitivity_rate(dgz, dgp, st, s4)
+            for j in range(nz):
+                z[j] += hs / 6.0 * (k1[j] + 2.0 * (k2[j] + k3[j]) + k4[j])
+                for m in range(p):
+                    sz[j, m] += hs / 6.0 * (s1[j, m] + 2.0 * (s2[j, m] + s3[j, m]) + s4[j, m])
+                if not abs(z[j]) <= STATE_LIMIT:  # held at the limit: no sensitivity
+                    z[j] = STATE_LIMIT if z[j] > 0 else -STATE_LIMIT
+                    for m in range(p):
+                        sz[j, m] = 0.0
     return f, ds, dp, zs
 
 
@@ -357,6 +507,53 @@ class ForceModel:
         """Internal states of all effects together."""
         return sum(t.n_states for t in self.terms)
 
+    @property
+    def has_state_partials(self) -> bool:
+        """True if the model has internal states and every effect with states gives the
+        partial derivatives of its state rates (:attr:`Effect.state_partials`): the states'
+        sensitivities are then integrated exactly instead of by forward differences."""
+        stateful = [t for t in self.terms if t.n_states]
+        return bool(stateful) and all(t.state_partials is not None for t in stateful)
+
+    def static_states_jacobian(self, r: float, values: Sequence[float] | np.ndarray
+                               ) -> tuple[np.ndarray, np.ndarray]:
+        """Derivatives of :meth:`static_states` with respect to ``r`` and the parameters.
+
+        Central differences of the closed-form (or finely integrated) loading curves,
+        steps of 1e-6 of each value (1e-9 m for ``r``, 1e-12 for a zero parameter).
+
+        Parameters
+        ----------
+        r : float
+            Suspension extension [m].
+        values : sequence of float
+            Parameter vector in model order.
+
+        Returns
+        -------
+        d_r : ndarray
+            ``(n_states,)`` d states / d r [1/m].
+        d_params : ndarray
+            ``(n_states, n_params)`` d states / d theta.
+        """
+        th = self.vector(values)
+        hr = 1e-6 * max(abs(r), 1e-3)
+        d_r = (self.static_states(r + hr, th) - self.static_states(r - hr, th)) / (2 * hr)
+        d_p = np.zeros((self.n_states, self.n_params))
+        p0 = 0
+        for t in self.terms:
+            p1 = p0 + len(t.params)
+            if t.n_states:
+                for j in range(p0, p1):
+                    step = 1e-6 * abs(th[j]) if th[j] else 1e-12
+                    tp, tm = th.copy(), th.copy()
+                    tp[j] += step
+                    tm[j] -= step
+                    d_p[:, j] = (self.static_states(r, tp) - self.static_states(r, tm)) / (
+                        2 * step)
+            p0 = p1
+        return d_r, d_p
+
     def force(
         self,
         r: np.ndarray | float,
@@ -486,9 +683,12 @@ class ForceModel:
         top mount) the states start at ``initial_states`` (default: at rest at ``r[0]``,
         :meth:`static_states`) and follow the path (RK4, ``r``, ``rdot`` and ``x2`` linear
         between samples). The force then depends on a parameter of a stateful term through
-        the states too: those columns of ``d_params`` are forward differences of the whole
-        path (one more integration per such parameter); the others are the kernels' exact
-        derivatives.
+        the states too: where the effects give their state partials
+        (:attr:`~fielddiag.effects.base.Effect.state_partials`) the states' sensitivities
+        are integrated along with them (the exact derivative of the discrete path),
+        otherwise (or where those sensitivities have grown without bound,
+        :data:`SENSITIVITY_GROWTH_LIMIT`) those columns of ``d_params`` are forward
+        differences of the whole path (one more integration per such parameter).
 
         Parameters
         ----------
@@ -534,6 +734,19 @@ class ForceModel:
             return path(r, rdot, x2, np.ascontiguousarray(z0), th, self.constant_values(), h,
                         nsub)
 
+        if state_jacobian and self.has_state_partials:
+            r0 = float(r[0]) if r.size else 0.0
+            if initial_states is None:
+                z0 = self.static_states(r0, theta)
+                sz0 = self.static_states_jacobian(r0, theta)[1]
+            else:
+                z0 = np.asarray(initial_states, float).ravel()
+                sz0 = np.zeros((self.n_states, self.n_params))
+            exact = self.compile(__name__, "_force_path_zs", error_model="numpy")._force_path_zs
+            out = exact(r, rdot, x2, np.ascontiguousarray(z0), np.ascontiguousarray(sz0), theta,
+                        self.constant_values(), h, nsub)
+            if not sensitivities_exploded(out[2], np.where(theta != 0, theta, 1.0), out[0]):
+                return out
         f, ds, dp, zs = run(theta)
         if state_jacobian:
             p0 = 0

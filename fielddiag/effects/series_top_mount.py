@@ -14,9 +14,23 @@ from fielddiag.effects.base import INF, Effect, ParamSpec, register_effect
 def _series_top_mount(r, rd, x2, z, p, c, dp, dz):  # pragma: no cover - compiled
     # state z[0] = u, the mount's deflection; the damper carries k_m u = c (rdot - du/dt)
     dz[0] = rd - p[1] / max(p[0], 1e-9) * z[0]
-    dp[0] = 0.0  # through the state (forward differences in the fit)
+    dp[0] = 0.0  # through the state (its sensitivity: _series_top_mount_partials)
     dp[1] = -z[0]
     return -p[1] * z[0], 0.0, 0.0, 0.0
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _series_top_mount_partials(r, rd, x2, z, p, c, dfz, dgs, dgz, dgp):  # pragma: no cover
+    # F = -k_m u;  g = du/dt = rdot - k_m / c u  (c floored at 1e-9 as in the kernel;
+    # selects, no branches: see _bouc_wen_partials)
+    cc = max(p[0], 1e-9)
+    dfz[0] = -p[1]
+    dgs[0, 0] = 0.0
+    dgs[0, 1] = 1.0
+    dgs[0, 2] = 0.0
+    dgz[0, 0] = -p[1] / cc
+    dgp[0, 0] = p[1] / (cc * cc) * z[0] * (1.0 if p[0] > 1e-9 else 0.0)
+    dgp[0, 1] = -z[0] / cc
 
 
 @register_effect
@@ -45,6 +59,7 @@ class SeriesTopMount(Effect):
                   valid_low=0.0, valid_strict=True),
     )
     kernel = _series_top_mount
+    state_partials = _series_top_mount_partials
 
     def speed_bounds(self, values: Sequence[float]) -> tuple[float, float, float]:
         """Largest stiffness [N/m], damping [N s/m] and rate [1/s] of the mount and damper.

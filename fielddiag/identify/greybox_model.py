@@ -18,9 +18,16 @@ import numpy as np
 from scipy import signal
 
 from fielddiag.effects import ForceModel
+from fielddiag.effects.model import sensitivities_exploded
 from fielddiag.errors import FieldDiagError, InsufficientDataError
 from fielddiag.identify.greybox_data import GRAVITY_MPS2, GreyBoxData
-from fielddiag.identify.greybox_sensitivities import _EMPTY, _kernels, static_equilibrium
+from fielddiag.identify.greybox_sensitivities import (
+    _EMPTY,
+    _kernels,
+    _kernels_sens,
+    static_equilibrium,
+    static_equilibrium_jacobian,
+)
 
 __all__ = ["GreyBoxProblem"]
 
@@ -35,9 +42,10 @@ _NUISANCE_SCALE = np.array([1e-3, 1e-2])
 
 #: How long an initial body offset or velocity is felt [s]: a passenger car body's free
 #: response (damping ratio >= 0.2 at >= 1 Hz) decays as exp(-1.26 t), to 3e-6 in 10 s.
-#: Models with internal states take the derivatives with respect to them over this span
-#: only (an approximation of the Jacobian, not of the residual: the fit's result is the
-#: same, a very lightly damped body converges a little slower).
+#: Models with internal states whose effects give no state partials take the derivatives
+#: (forward differences) with respect to them over this span only (an approximation of
+#: the Jacobian, not of the residual: the fit's result is the same, a very lightly damped
+#: body converges a little slower).
 INITIAL_STATE_MEMORY_S = 10.0
 
 
@@ -146,6 +154,7 @@ class GreyBoxProblem:
         self.horizon_s: float | None = None
         self._prep = [self._prepare(d) for d in self.data]
         self._equilibria: dict[tuple, tuple[float, np.ndarray]] = {}
+        self._equilibrium_jacobians: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
 
     # ------------------------------------------------------------------ data
     def _prepare(self, d: GreyBoxData) -> _Prepared:
@@ -326,13 +335,11 @@ class GreyBoxProblem:
         m_tot, load = self._mass_for_unit(d)
         return theta_u, m_tot, load
 
-    def _simulate_session_z(self, s: int, z: np.ndarray, n_max: int | None = None
-                            ) -> np.ndarray:
-        """Body acceleration of session ``s`` (unfiltered, untrimmed; its first ``n_max``
-        samples if given) for a model with internal states."""
+    def _stateful_setup(self, s: int, z: np.ndarray) -> dict:
+        """What a simulation of session ``s`` with internal states needs: parameters,
+        masses, the static equilibrium (cached), the RK4 substeps and the resets."""
         theta_u, mass, nuis = self.unpack(z)
-        pr = self._prep[s]
-        d = pr.data
+        d = self._prep[s].data
         theta, m_tot, load = self._session_setup(d, theta_u, mass)
         key = (theta.tobytes(), float(d.wheel_disp_m[0]), load)
         eq = self._equilibria.get(key)
@@ -354,25 +361,101 @@ class GreyBoxProblem:
         if self.horizon_s is not None and d.body_disp_m is not None:
             every = max(1, int(round(self.horizon_s * d.sample_rate_hz)))
         r_static = x_eq - float(d.wheel_disp_m[0]) if d.band_hz is not None else 0.0
+        return {"d": d, "theta_u": theta_u, "mass": mass, "nuis": nuis[s], "theta": theta,
+                "m_tot": m_tot, "load": load, "key": key, "x_eq": x_eq,
+                "z_eq": np.ascontiguousarray(z_eq, dtype=float), "h": h, "nsub": nsub,
+                "every": every, "r_static": r_static}
+
+    def _simulate_session_z(self, s: int, z: np.ndarray, n_max: int | None = None
+                            ) -> np.ndarray:
+        """Body acceleration of session ``s`` (unfiltered, untrimmed; its first ``n_max``
+        samples if given) for a model with internal states."""
+        st = self._stateful_setup(s, z)
+        d, every = st["d"], st["every"]
         self.evaluations += 1
         n = d.n_samples if n_max is None else min(int(n_max), d.n_samples)
         return _kernels(self.model)._simulate_z(
-            d.wheel_disp_m[:n], d.wheel_vel_mps[:n], h, nsub, theta,
-            self.model.constant_values(),
-            m_tot, load, x_eq, np.ascontiguousarray(z_eq, dtype=float), nuis[s, 0],
-            nuis[s, 1], every, d.body_disp_m if every else _EMPTY,
-            d.body_vel_mps if every else _EMPTY, r_static)
+            d.wheel_disp_m[:n], d.wheel_vel_mps[:n], st["h"], st["nsub"], st["theta"],
+            self.model.constant_values(), st["m_tot"], st["load"], st["x_eq"], st["z_eq"],
+            st["nuis"][0], st["nuis"][1], every, d.body_disp_m if every else _EMPTY,
+            d.body_vel_mps if every else _EMPTY, st["r_static"])
+
+    def _simulate_session_zs(self, s: int, z: np.ndarray
+                             ) -> tuple[np.ndarray, np.ndarray | None]:
+        """Body acceleration of session ``s`` and its Jacobian ``(n, n_fit)`` with respect
+        to the fitted vector (unfiltered, untrimmed) for a model with internal states whose
+        effects give their state partials: the states' sensitivities integrated in the
+        same run (:func:`~fielddiag.identify.greybox_sensitivities._simulate_zs`). The
+        Jacobian is None where those sensitivities have grown without bound (a chaotic
+        discrete state, :data:`~fielddiag.effects.model.SENSITIVITY_GROWTH_LIMIT`)."""
+        st = self._stateful_setup(s, z)
+        d, every, theta, mass, theta_u = st["d"], st["every"], st["theta"], st["mass"], \
+            st["theta_u"]
+        jac_eq = self._equilibrium_jacobians.get(st["key"])
+        if jac_eq is None:
+            jac_eq = static_equilibrium_jacobian(self.model, theta, float(d.wheel_disp_m[0]),
+                                                 st["load"], st["x_eq"])
+            if len(self._equilibrium_jacobians) > 256:
+                self._equilibrium_jacobians.clear()
+            self._equilibrium_jacobians[st["key"]] = jac_eq
+        dx_eq, dz_eq = jac_eq
+        # columns: parameters (absolute values of the session), total mass, dx0, dv0
+        with_mass = self.absolute and self.has_mass
+        tcols = np.union1d(self.free_model, np.flatnonzero(self.scaled) if with_mass
+                           else np.zeros(0, int)).astype(np.int64)
+        nt = tcols.size
+        q = nt + (1 if with_mass else 0) + 2
+        s0 = np.zeros((2 + self.model.n_states, q))  # rows: position, velocity, states
+        s0[0, :nt] = dx_eq[tcols]
+        s0[2:, :nt] = dz_eq[:, tcols]
+        s0[0, q - 2] = 1.0
+        s0[1, q - 1] = 1.0
+        sx_reset = np.zeros(q)
+        if d.band_hz is not None:  # r_static moves with the equilibrium
+            sx_reset[:nt] = dx_eq[tcols]
+        self.evaluations += 1
+        a, jac = _kernels_sens(self.model)._simulate_zs(
+            d.wheel_disp_m, d.wheel_vel_mps, st["h"], st["nsub"], theta,
+            self.model.constant_values(), st["m_tot"], st["load"], st["x_eq"], st["z_eq"],
+            st["nuis"][0], st["nuis"][1], every, d.body_disp_m if every else _EMPTY,
+            d.body_vel_mps if every else _EMPTY, st["r_static"], tcols, with_mass, s0,
+            sx_reset)
+        size = np.concatenate([np.where(theta[tcols] != 0, theta[tcols], 1.0),
+                               [st["m_tot"]] if with_mass else [], _NUISANCE_SCALE])
+        if sensitivities_exploded(jac, size, a):
+            return a, None
+        pos = np.full(self.n_model, -1, dtype=int)
+        pos[tcols] = np.arange(nt)
+        nf = self.free_model.size
+        jz = np.zeros((a.size, self.n_fit))
+        jt = jac[:, pos[self.free_model]]
+        if self.absolute:
+            col_scale = np.where(self.scaled, mass, 1.0)
+            jz[:, :nf] = jt * col_scale[self.free_model]
+            if with_mass:  # d/d(1/M) = -M^2 d/dM
+                sc = np.flatnonzero(self.scaled)
+                jz[:, nf] = -mass * mass * (jac[:, pos[sc]] @ theta_u[sc] + jac[:, nt])
+        else:
+            jz[:, :nf] = jt
+        if self.fit_initial_state:
+            jz[:, self.nuis_index + 2 * s] = jac[:, q - 2]
+            jz[:, self.nuis_index + 2 * s + 1] = jac[:, q - 1]
+        return a, jz
 
     def _simulate_stateful(self, z: np.ndarray, sens: bool
                            ) -> list[tuple[np.ndarray, np.ndarray | None]]:
-        """:meth:`simulate` for models with internal states: the Jacobian by forward
-        differences of the same discrete simulation (one more run per fitted value; a
-        session's initial-state columns re-run that session only)."""
+        """:meth:`simulate` for models with internal states: the Jacobian from the states'
+        sensitivities integrated in the same run where the effects give their state
+        partials (and the steps were within RK4's stability for the states), else by
+        forward differences of the same discrete simulation (one more run per fitted value;
+        a session's initial-state columns re-run that session only)."""
         out = []
+        exact = sens and self.model.has_state_partials
         for s, pr in enumerate(self._prep):
-            a = self._simulate_session_z(s, z)
-            jz = None
-            if sens:
+            # (the acceleration is the same either way, operation for operation)
+            a, jz = self._simulate_session_zs(s, z) if exact else (
+                self._simulate_session_z(s, z), None)
+            if sens and jz is None:
                 jz = np.zeros((a.size, self.n_fit))
                 for j in range(self.nuis_index):
                     step = 1e-6 * abs(z[j]) if z[j] else 1e-9

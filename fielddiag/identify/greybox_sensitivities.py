@@ -13,6 +13,13 @@ simulation; the initial sensitivities come from differentiating the static equil
 (Serban & Freeman eq. 18). The loop is a template compiled per combination of effects
 (:mod:`fielddiag.effects.compose`) around the effects' kernels, which return the force's
 derivatives with respect to the states and the parameters.
+
+Effects with internal states (hysteresis, a series top mount) add their states ``z`` to
+the integrated vector; their sensitivities ``dz/dtheta`` are integrated with the same RK4
+steps from the partial derivatives of the state rates (``_simulate_zs``, the effects'
+``state_partials``), starting from the derivative of the static equilibrium
+(:func:`static_equilibrium_jacobian`): again the exact derivative of the discrete
+simulation, in one run instead of one run per parameter.
 """
 
 from __future__ import annotations
@@ -24,7 +31,7 @@ import numpy as np
 from numba import njit
 
 from fielddiag.effects import ForceModel
-from fielddiag.effects.compose import model_force, model_force_z
+from fielddiag.effects.compose import model_force, model_force_z, model_state_partials
 from fielddiag.effects.model import STATE_LIMIT
 from fielddiag.identify.greybox_data import GRAVITY_MPS2
 
@@ -259,11 +266,204 @@ def _simulate_z(x1, v1, h, nsub, theta, consts, mass, load, x_eq, z_eq, dx0, dv0
     return a_out
 
 
+def _simulate_zs(x1, v1, h, nsub, theta, consts, mass, load, x_eq, z_eq, dx0, dv0,
+                 reset_every, x2r, v2r, r_static, tcols, with_mass, s0,
+                 sx_reset):  # pragma: no cover - numba template
+    """:func:`_simulate_z` with the sensitivities of the body acceleration: the body's and
+    the states' sensitivities integrated by the same RK4 steps (the exact derivative of the
+    discrete simulation; the acceleration itself is the same as :func:`_simulate_z`'s,
+    operation for operation).
+
+    The sensitivities ``s0`` (2 + n_states, q) at the start (rows: body position, body
+    velocity, the states) are taken with respect to the parameters ``tcols``, then the
+    total mass if ``with_mass``, then the initial body offset and velocity (which act
+    through ``s0`` only). At a reset of the body to the measured motion the position's
+    sensitivities become ``sx_reset`` (q,) and the velocity's 0. Returns a2 (n,) and the
+    Jacobian J (n, q).
+
+    The four RK4 stages are one loop body (not a stage function called four times: its
+    many array arguments would be reference-counted at every call)."""
+    n = x1.shape[0]
+    nz = z_eq.shape[0]
+    p = theta.shape[0]
+    q = s0.shape[1]
+    nr = 2 + nz
+    nt = tcols.shape[0]
+    a_out = np.empty(n)
+    jac = np.empty((n, q))
+    dth = np.zeros(max(p, 1))
+    dfz = np.zeros(nz)
+    dgs = np.zeros((nz, 3))
+    dgz = np.zeros((nz, nz))
+    dgp = np.zeros((nz, max(p, 1)))
+    z = z_eq.copy()
+    zt = np.empty(nz)
+    kz = np.empty((4, nz))  # the states' rates per stage
+    kx = np.empty(4)  # the body's velocity per stage
+    ka = np.empty(4)  # and acceleration
+    s = s0.copy()  # sensitivities: position, velocity, states
+    t = np.empty((nr, q))  # at a stage
+    k = np.empty((4, nr, q))  # their rates per stage
+    dzr = np.empty(nz)
+    x = x_eq + dx0
+    v = dv0
+    bas = _hermite_basis(nsub)
+    hs = h / nsub
+    xin = np.empty(3)
+    vin = np.empty(3)
+    for i in range(n):
+        if reset_every > 0 and i > 0 and i % reset_every == 0:
+            x = x2r[i] + r_static
+            v = v2r[i]
+            for j in range(q):
+                s[0, j] = sx_reset[j]
+                s[1, j] = 0.0
+        x0k, x1k = x1[i], x1[min(i + 1, n - 1)]
+        hv0, hv1 = h * v1[i], h * v1[min(i + 1, n - 1)]
+        for sub in range(nsub):
+            for m in range(3):
+                b = bas[2 * sub + m]
+                xin[m] = b[0] * x0k + b[1] * hv0 + b[2] * x1k + b[3] * hv1
+                vin[m] = (b[4] * x0k + b[5] * hv0 + b[6] * x1k + b[7] * hv1) / h
+            for st in range(4):
+                if st == 0:
+                    xs, vs = x, v
+                    xi, vi = (x1[i], v1[i]) if sub == 0 else (xin[0], vin[0])
+                    for j in range(nz):
+                        zt[j] = z[j]
+                    for m in range(nr):
+                        for j in range(q):
+                            t[m, j] = s[m, j]
+                else:
+                    c = 0.5 if st < 3 else 1.0
+                    xs, vs = x + c * hs * kx[st - 1], v + c * hs * ka[st - 1]
+                    xi, vi = (xin[1], vin[1]) if st < 3 else (xin[2], vin[2])
+                    for j in range(nz):
+                        zt[j] = z[j] + c * hs * kz[st - 1, j]
+                    for m in range(nr):
+                        for j in range(q):
+                            t[m, j] = s[m, j] + c * hs * k[st - 1, m, j]
+                # the stage: body acceleration, state rates and the sensitivities' rates
+                r = xs - xi
+                rd = vs - vi
+                f, fr, fv, fx = model_force_z(r, rd, xs, zt, theta, consts, dth, dzr)
+                a = (f - load) / mass
+                model_state_partials(r, rd, xs, zt, theta, consts, dfz, dgs, dgz, dgp)
+                kx[st] = vs
+                ka[st] = a
+                for j in range(nz):
+                    kz[st, j] = dzr[j]
+                ax = (fr + fx) / mass
+                av = fv / mass
+                for j in range(q):
+                    k[st, 0, j] = t[1, j]
+                    k[st, 1, j] = ax * t[0, j] + av * t[1, j]
+                for m in range(nz):
+                    az = dfz[m] / mass
+                    for j in range(q):
+                        k[st, 1, j] += az * t[2 + m, j]
+                for jj in range(nt):
+                    k[st, 1, jj] += dth[tcols[jj]] / mass
+                if with_mass:
+                    k[st, 1, nt] -= a / mass
+                for m in range(nz):
+                    gx = dgs[m, 0] + dgs[m, 2]  # r = x - x1 and x2 = x move with the body
+                    gv = dgs[m, 1]
+                    for j in range(q):
+                        k[st, 2 + m, j] = gx * t[0, j] + gv * t[1, j]
+                    for mm in range(nz):
+                        gz = dgz[m, mm]
+                        for j in range(q):
+                            k[st, 2 + m, j] += gz * t[2 + mm, j]
+                    for jj in range(nt):
+                        k[st, 2 + m, jj] += dgp[m, tcols[jj]]
+                if sub == 0 and st == 0:  # the knot: output
+                    a_out[i] = a
+                    for j in range(q):
+                        jac[i, j] = k[0, 1, j]  # d a2 / d column
+                    if i == n - 1:
+                        break
+            if i == n - 1:
+                break
+            x += hs / 6.0 * (kx[0] + 2.0 * kx[1] + 2.0 * kx[2] + kx[3])
+            v += hs / 6.0 * (ka[0] + 2.0 * ka[1] + 2.0 * ka[2] + ka[3])
+            for m in range(nr):
+                for j in range(q):
+                    s[m, j] += hs / 6.0 * (k[0, m, j] + 2.0 * (k[1, m, j] + k[2, m, j])
+                                           + k[3, m, j])
+            for j in range(nz):
+                z[j] += hs / 6.0 * (kz[0, j] + 2.0 * (kz[1, j] + kz[2, j]) + kz[3, j])
+                if not abs(z[j]) <= STATE_LIMIT:  # held at the limit: no sensitivity
+                    z[j] = STATE_LIMIT if z[j] > 0 else -STATE_LIMIT
+                    for m in range(q):
+                        s[2 + j, m] = 0.0
+    return a_out, jac
+
+
 def _kernels(model: ForceModel) -> Any:
     """The simulation templates compiled for ``model`` (cached per term combination)."""
     if model.n_states:
         return model.compile(__name__, "_accel_z", "_simulate_z", error_model="numpy")
     return model.compile(__name__, "_stage", "_simulate")
+
+
+def _kernels_sens(model: ForceModel) -> Any:
+    """The simulation with the states' sensitivities compiled for ``model`` (internal
+    states whose effects all give their partial derivatives)."""
+    return model.compile(__name__, "_simulate_zs", error_model="numpy")
+
+
+def static_equilibrium_jacobian(model: ForceModel, theta: np.ndarray, wheel_disp_m: float,
+                                load_n: float, body_disp_m: float
+                                ) -> tuple[np.ndarray, np.ndarray]:
+    """Derivatives of :func:`static_equilibrium` with respect to the parameters.
+
+    At the equilibrium ``G(r, theta) = F_static(r, r + x1, theta) - load = 0``, so
+    ``dr/dtheta = -G_theta / G_r`` (implicit function theorem), and the states at rest
+    follow ``dz/dtheta = dz_static/dr dr/dtheta + dz_static/dtheta``. The partial
+    derivatives are central differences of the static force and the static states (steps
+    of 1e-6 of each value), not of the root search. Where the search found no root (no
+    sign change) the position does not move with the parameters.
+
+    Parameters
+    ----------
+    model : ForceModel
+        Force terms.
+    theta : ndarray
+        Parameters (absolute, or per unit mass with a load per unit mass).
+    wheel_disp_m : float
+        Wheel position [m].
+    load_n : float
+        Static load on the suspension [N] (or per unit mass).
+    body_disp_m : float
+        The body position :func:`static_equilibrium` found [m].
+
+    Returns
+    -------
+    d_body : ndarray
+        ``(n_params,)`` d body position / d theta.
+    d_states : ndarray
+        ``(n_states, n_params)`` d states at rest / d theta.
+    """
+    th = np.asarray(theta, float)
+    r = float(body_disp_m) - float(wheel_disp_m)
+
+    def g(rr: float, t: np.ndarray) -> float:
+        return model.static_force(rr, rr + wheel_disp_m, t) - load_n
+
+    d_body = np.zeros(th.size)
+    hr = 1e-6 * max(abs(r), 1e-3)
+    g_r = (g(r + hr, th) - g(r - hr, th)) / (2 * hr)
+    scale = abs(g_r) * max(abs(r), 1e-3) + abs(load_n)
+    if g_r != 0.0 and abs(g(r, th)) <= 1e-6 * scale:
+        for j in range(th.size):
+            step = 1e-6 * abs(th[j]) if th[j] else 1e-12
+            tp, tm = th.copy(), th.copy()
+            tp[j] += step
+            tm[j] -= step
+            d_body[j] = -(g(r, tp) - g(r, tm)) / (2 * step) / g_r
+    s_r, s_p = model.static_states_jacobian(r, th)
+    return d_body, s_r[:, None] * d_body[None, :] + s_p
 
 
 def static_equilibrium(model: ForceModel, theta: np.ndarray, wheel_disp_m: float,

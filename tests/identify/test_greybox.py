@@ -104,6 +104,96 @@ def test_sensitivities_are_the_derivative_of_the_simulation() -> None:
         assert err < 1e-5, (j, err)
 
 
+@pytest.mark.parametrize("effects", [
+    (("bouc_wen", {"hysteretic_force_n": 120.0, "yield_displacement_m": 1e-3}),
+     ("series_top_mount", {"suspension_damping_ns_per_m": 1800.0,
+                           "mount_stiffness_n_per_m": 6e4})),
+    (("hysteretic_spring", {"hysteretic_stiffness_n_per_m": 3e4, "yield_displacement_m": 3e-3}),
+     ("dahl_friction", {"friction_force_n": 40.0, "friction_gradient_n_per_m": 500.0,
+                        "yield_displacement_m": 5e-4})),
+], ids=["bouc_wen+top_mount", "dahl+dahl_friction"])
+def test_stateful_sensitivities_are_the_derivative_of_the_simulation(effects, monkeypatch
+                                                                      ) -> None:
+    """Models with internal states: the Jacobian from the states' sensitivity equations ==
+    central differences of the discrete simulation (to 1e-6 per parameter column, two
+    sessions with added mass, plain and with the continuation's resets), and == the
+    forward-difference Jacobian the fit used before (to its own accuracy, 1e-5), with the
+    same residuals."""
+    from fielddiag.effects import ForceModel
+
+    eff = [make_effect(n, **kw) for n, kw in effects]
+    car = QuarterCarParams()
+    before, after = simulate_pair(car, added_mass_kg=60.0, seed=4, duration_s=12.0,
+                                  effects=eff)
+    model, values = model_from_sim(car, eff)
+    assert model.has_state_partials and model.n_states == 2
+    theta_u = model.vector(values) / np.where(model.force_scaled, 400.0, 1.0)
+    nuis = np.array([[1e-3, -2e-3], [5e-4, 1e-3]])
+    for band, horizon in ((None, None), (None, 0.2), ((0.8, 30.0), None)):
+        data = [GreyBoxData.from_drive(d, band_hz=band) for d in (before, after)]
+        prob = GreyBoxProblem(model, data, body_mass_kg=400.0)
+        prob.horizon_s = horizon
+        z = prob.pack(theta_u * 1.1, 400.0, nuis)
+        r, jac = prob.residual_and_jacobian(z)
+        # within RK4's stability for the states: the exact sensitivities, not the fallback
+        assert all(prob._simulate_session_zs(s, z)[1] is not None for s in range(2))
+        if band is None:
+            for j in range(z.size):
+                # central and five-point differences, the best of several steps: the
+                # truncation error is uneven (the states' rates switch at every reversal)
+                # and the round-off of a small column large
+                errs = []
+                for rel in (1e-2, 1e-3, 1e-4, 1e-5, 1e-6, 1e-7):
+                    h = rel * abs(z[j])
+                    f = {}
+                    for m in (-2, -1, 1, 2):
+                        zz = z.copy()
+                        zz[j] += m * h
+                        f[m] = prob.residual(zz)
+                    for cd in ((f[1] - f[-1]) / (2 * h),
+                               (f[-2] - 8 * f[-1] + 8 * f[1] - f[2]) / (12 * h)):
+                        errs.append(np.linalg.norm(cd - jac[:, j]) / np.linalg.norm(cd))
+                # the initial-state columns are small: round-off limits the differences
+                # to a few 1e-6 there
+                assert min(errs) < (1e-6 if j < prob.nuis_index else 1e-5), (band, horizon, j)
+        else:
+            with monkeypatch.context() as mp:
+                mp.setattr(ForceModel, "has_state_partials", property(lambda _self: False))
+                r_fd, jac_fd = prob.residual_and_jacobian(z)
+            np.testing.assert_array_equal(r, r_fd)
+            assert np.linalg.norm(jac - jac_fd) / np.linalg.norm(jac) < 1e-5
+
+
+def test_a_chaotic_state_takes_its_jacobian_by_forward_differences(monkeypatch) -> None:
+    """A loaded body started 0.2 m off and at 3 m/s (a fit exploring its initial state):
+    the Bouc-Wen state's RK4 steps, chosen for the measured travel rates, are far beyond
+    its stability until the start-up dies out, so its exact sensitivities grow without
+    bound. The Jacobian of that session is then the forward-difference one, to the last
+    bit; the other session keeps its exact sensitivities."""
+    from fielddiag.effects import ForceModel
+
+    eff = [make_effect("bouc_wen", hysteretic_force_n=120.0, yield_displacement_m=1e-3)]
+    car = QuarterCarParams()
+    before, after = simulate_pair(car, added_mass_kg=60.0, seed=4, duration_s=12.0,
+                                  effects=eff)
+    model, values = model_from_sim(car, eff)
+    data = [GreyBoxData.from_drive(d, band_hz=(0.8, 30.0)) for d in (before, after)]
+    prob = GreyBoxProblem(model, data, body_mass_kg=400.0)
+    z = prob.pack(model.vector(values) / np.where(model.force_scaled, 400.0, 1.0), 400.0,
+                  np.array([[0.0, 0.0], [0.2, -3.0]]))
+    assert prob._simulate_session_zs(0, z)[1] is not None
+    assert prob._simulate_session_zs(1, z)[1] is None
+    r, jac = prob.residual_and_jacobian(z)
+    with monkeypatch.context() as mp:
+        mp.setattr(ForceModel, "has_state_partials", property(lambda _self: False))
+        r_fd, jac_fd = prob.residual_and_jacobian(z)
+    np.testing.assert_array_equal(r, r_fd)
+    second = prob.session_slices()[1]
+    np.testing.assert_array_equal(jac[second], jac_fd[second])
+    first = prob.session_slices()[0]
+    assert np.linalg.norm(jac[first] - jac_fd[first]) < 1e-5 * np.linalg.norm(jac[first])
+
+
 def test_simulate_body_starts_from_static_equilibrium() -> None:
     """With the wheel still, the body stays put at the loaded equilibrium (a2 = 0)."""
     model = linear_model(coupling=True)
