@@ -39,37 +39,43 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
+from scipy import fft as sp_fft
 from scipy import signal, stats
 
 from fielddiag.blas import single_threaded_blas
 from fielddiag.channels import CORNERS
 from fielddiag.diagnose.selection import CandidateFit, compare, confidence, select_model
 from fielddiag.effects import EFFECTS, ForceModel, get_effect
-from fielddiag.errors import FieldDiagError, InvalidValueError
+from fielddiag.errors import FieldDiagError, InsufficientDataError, InvalidValueError
 from fielddiag.sim._common import G_MPS2
 from fielddiag.vehicle.identify import (
     VehicleIdentifyConfig,
     _derived,
     analysis_samples,
+    band_edges_hz,
     body_noise_std_mps2,
     car_accel_noise_std_mps2,
-    filter_response,
+    drive_noise,
     integrate_twice,
+    noise_weighting,
     prepare_drive,
+    weighted_drives,
 )
 from fielddiag.vehicle.recording import VehicleRecording
 from fielddiag.vehicle.regression import (
     N_PARAMS,
     PARAM_NAMES,
+    DriveNoise,
     DriveRegressors,
+    band_split_signals,
+    compensated_least_squares,
     equation_rows,
     mass_matrix,
-    noise_normal_equations,
-    weighted_least_squares,
+    row_block_grams,
 )
 
 __all__ = ["DEFAULT_EFFECTS", "VehicleDiagnoseConfig", "VehicleDiagnosis", "diagnose_vehicle",
@@ -155,16 +161,17 @@ class _Term:
                 cols.append(_K0 + i)
         return cols
 
-    def columns(self, d: DriveRegressors) -> np.ndarray:
-        """(3, n, p) columns of the body equations (the effect's force moved to the left).
+    def corner_columns(self, d: DriveRegressors) -> np.ndarray:
+        """(corners, n, p) the effect's force per unit of each linear parameter at each of
+        its corners (the force moved to the left of the body equations).
 
         The force is evaluated on the corner's travel and rate before the band-pass (only
-        the drift removed) and then filtered and decimated exactly like the other terms:
-        the equation holds between band-passed quantities, and the band-pass of a
-        nonlinear force is not the force of the band-passed motion (friction came out
-        ~40 % low that way).
+        the drift removed) and then weighted in frequency, filtered and decimated exactly
+        like the other terms of the drive: the equation holds between band-passed
+        quantities, and the band-pass of a nonlinear force is not the force of the
+        band-passed motion (friction came out ~40 % low that way).
         """
-        key = (self, id(d))
+        key = (self, id(d), "corners")
         hit = _COLUMNS.get(key)
         if hit is not None and hit[0] is d:
             return hit[1]
@@ -179,15 +186,28 @@ class _Term:
         values.update(dict(self.shape))
         vec = model.vector(values)
         idx = [model.index(p) for p in lin]
-        raw = _RAW[id(d)][1]
-        out = np.zeros((3, d.n, len(lin)))
-        for c in self.corners:
+        _, raw, weight = _RAW[id(d)]
+        out = np.zeros((len(self.corners), d.n, len(lin)))
+        for j, c in enumerate(self.corners):
             i = CORNERS.index(c)
             _, _, dp = model.force(raw.r[i], raw.rd[i], 0.0, vec)
-            cols = raw.filter(-dp[:, idx].T)  # (p, n)
-            lever = np.array([1.0, d.corner_x[i], d.corner_y[i]])
-            for e in range(3):
-                out[e] += lever[e] * cols.T
+            out[j] = raw.filter(-dp[:, idx].T, weight).T
+        _COLUMNS[key] = (d, out)
+        return out
+
+    def levers(self, d: DriveRegressors) -> np.ndarray:
+        """(corners, 3) each corner's lever arms ``[1, x, y]`` in the three equations."""
+        return np.array([[1.0, d.corner_x[CORNERS.index(c)], d.corner_y[CORNERS.index(c)]]
+                         for c in self.corners])
+
+    def columns(self, d: DriveRegressors) -> np.ndarray:
+        """(3, n, p) columns of the body equations: :meth:`corner_columns` times the
+        corners' lever arms, summed."""
+        key = (self, id(d))
+        hit = _COLUMNS.get(key)
+        if hit is not None and hit[0] is d:
+            return hit[1]
+        out = np.einsum("ce,cnp->enp", self.levers(d), self.corner_columns(d))
         _COLUMNS[key] = (d, out)
         return out
 
@@ -202,9 +222,20 @@ class _RawMotion:
     sos: np.ndarray
     passes: int
     keep: slice
+    rate_hz: float
+    gains: dict[int, tuple[Callable, np.ndarray]] = field(default_factory=dict)  # weight(f)
 
-    def filter(self, x: np.ndarray) -> np.ndarray:
-        """Band-pass (zero phase, as often as the identification), trim, decimate."""
+    def filter(self, x: np.ndarray, weight: Callable[[np.ndarray], np.ndarray] | None = None
+               ) -> np.ndarray:
+        """Frequency weighting (as :func:`prepare_drive` applies it, over the whole drive),
+        band-pass (zero phase, as often as the identification), trim, decimate."""
+        if weight is not None:
+            n = x.shape[-1]
+            gain = self.gains.get(id(weight))
+            if gain is None or gain[0] is not weight:
+                gain = (weight, weight(sp_fft.rfftfreq(n, 1.0 / self.rate_hz)))
+                self.gains[id(weight)] = gain
+            x = sp_fft.irfft(sp_fft.rfft(x, n, axis=-1) * gain[1], n, axis=-1)
         for _ in range(self.passes):
             x = signal.sosfiltfilt(self.sos, x, axis=-1)
         return x[..., self.keep]
@@ -235,14 +266,16 @@ def _raw_motion(rec: VehicleRecording, cfg: VehicleIdentifyConfig) -> _RawMotion
     r = proj @ x[4:] - x[:4]
     rd = proj @ v[4:] - v[:4]
     sos = signal.butter(cfg.filter_order, [lo, hi], "bandpass", fs=fs, output="sos")
-    return _RawMotion(r, rd, sos, cfg.passes, analysis_samples(acc.shape[1], fs, cfg))
+    return _RawMotion(r, rd, sos, cfg.passes, analysis_samples(acc.shape[1], fs, cfg), fs)
 
 
 #: One compiled ForceModel per effect, and the columns of the terms of the running
-#: diagnosis (cleared at its start and end).
+#: diagnosis (cleared at its start and end); per prepared drive its raw motion and the
+#: frequency weighting it was prepared with.
 _MODELS: dict[str, ForceModel] = {}
-_COLUMNS: dict[tuple[_Term, int], tuple[DriveRegressors, np.ndarray]] = {}
-_RAW: dict[int, tuple[DriveRegressors, _RawMotion]] = {}
+_COLUMNS: dict[tuple, tuple[DriveRegressors, np.ndarray]] = {}
+_RAW: dict[int, tuple[DriveRegressors, _RawMotion,
+                      Callable[[np.ndarray], np.ndarray] | None]] = {}
 _ROWS: dict[int, tuple[DriveRegressors, np.ndarray, np.ndarray]] = {}
 
 
@@ -268,48 +301,173 @@ def _shape_grid(effect: str, r: np.ndarray) -> list[tuple[tuple[str, float], ...
 
 
 # --------------------------------------------------------------------------- fitting
+def _augment(lin: np.ndarray, cross: np.ndarray, extra: np.ndarray) -> np.ndarray:
+    """Gram matrices of ``[A, E, b]`` from those of ``[A, b]`` (``lin``, (..., P0 + 1,
+    P0 + 1)), ``E^T [A, b]`` (``cross``, (..., q, P0 + 1)) and ``E^T E`` (``extra``):
+    the effects' columns ``E`` between the linear model's and the right-hand side, as
+    :func:`compensated_least_squares` takes them (``b`` last)."""
+    p0, q = N_PARAMS, extra.shape[-1]
+    p = p0 + q
+    out = np.zeros(lin.shape[:-2] + (p + 1, p + 1))
+    idx = np.append(np.arange(p0), p)
+    out[..., idx[:, None], idx] = lin
+    out[..., p0:p, idx] = cross
+    out[..., idx, p0:p] = np.swapaxes(cross, -1, -2)
+    out[..., p0:p, p0:p] = extra
+    return out
+
+
+def _block_products(x: np.ndarray, y: np.ndarray, block: int) -> np.ndarray:
+    """``x^T y`` over consecutive time blocks, the blocks of :func:`row_block_grams` (from
+    the first sample, the last one shorter): (..., n_blocks, p, q) from (..., n, p) and
+    (..., n, q)."""
+    n = x.shape[-2]
+    bs = max(1, int(block))
+    full = n // bs
+    xb = x[..., : full * bs, :].reshape(x.shape[:-2] + (full, bs, x.shape[-1]))
+    yb = y[..., : full * bs, :].reshape(y.shape[:-2] + (full, bs, y.shape[-1]))
+    out = np.matmul(xb.swapaxes(-1, -2), yb)
+    if n > full * bs:  # the last, shorter block
+        last = np.matmul(x[..., full * bs:, :].swapaxes(-1, -2), y[..., full * bs:, :])
+        out = np.concatenate([out, last[..., None, :, :]], axis=-3)
+    return out
+
+
+def _pieces(terms: Sequence[_Term], d: DriveRegressors) -> tuple[np.ndarray, np.ndarray]:
+    """The effects' columns of ``terms`` as per-corner force columns ``U`` (n, m) and
+    lever arms ``L`` (3, m, q): the equations' extra columns are ``E[e] = U L[e]``."""
+    cols, rows = [], []
+    q0 = 0
+    q = sum(len(t.linear_params()) for t in terms)
+    for t in terms:
+        cc, lev = t.corner_columns(d), t.levers(d)
+        for j in range(cc.shape[0]):
+            for p in range(cc.shape[2]):
+                cols.append(cc[j, :, p])
+                row = np.zeros((3, q))
+                row[:, q0 + p] = lev[j]
+                rows.append(row)
+        q0 += cc.shape[2]
+    return np.stack(cols, axis=1), np.stack(rows, axis=1)
+
+
 @dataclass
 class _Data:
-    """Both drives' rows and the extra columns of one model, split fit / held out."""
+    """Both drives as fitted and scored (weighted in frequency), their noise, the held-out
+    split, and the Gram matrices of the linear model's rows (cached per part and block)."""
 
     drives: list[DriveRegressors]
-    noise: dict[int, tuple[np.ndarray, np.ndarray]] | None  # group -> E[A^T A], E[A^T b]
+    noise: list[DriveNoise] | None  # per drive, for all its samples
     split: list[int]  # first held-out sample of each drive
+    edges_hz: np.ndarray | None = None  # hub-noise bands; None: the hub noise not estimated
+    hub_iterations: int = 0
+    bias_correction: bool = False
+    _cache: dict[Any, Any] = field(default_factory=dict)
 
-    def noise_for(self, parts: Sequence[slice], n_cols: int
-                  ) -> dict[int, tuple[np.ndarray, np.ndarray]] | None:
-        """The noise's expected normal equations for the samples of ``parts`` (a share of
-        the drive's sums), padded with zeros for the effects' columns (their noise is
-        left out: the effects are evaluated on the measured motion)."""
+    def _rows(self, k: int) -> np.ndarray:
+        """``[A, b]`` (3, n, P0 + 1) of drive ``k``."""
+        key = ("rows", k)
+        if key not in self._cache:
+            a, b = _equation_rows(self.drives[k])
+            self._cache[key] = np.concatenate([a, b[..., None]], axis=2)
+        return self._cache[key]
+
+    def _signals(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """The 13 signals the rows are made of, ``S`` (n, 13: heave/pitch/roll
+        acceleration, travel and rate per corner, the car's accelerations), and the map
+        ``M`` (3, 13, P0 + 1) with ``[A, b][e] = S M[e]`` (:func:`equation_rows` of unit
+        signals)."""
+        key = ("signals", k)
+        if key not in self._cache:
+            d = self.drives[k]
+            unit = np.eye(13)
+            basis = replace(d, qdd=unit[:3], r=unit[3:7], rd=unit[7:11], a_long=unit[11],
+                            a_lat=unit[12])
+            a, b = equation_rows(basis)
+            sig = np.vstack([d.qdd, d.r, d.rd, d.a_long, d.a_lat]).T
+            self._cache[key] = (np.ascontiguousarray(sig),
+                                np.concatenate([a, b[..., None]], axis=2))
+        return self._cache[key]
+
+    def _band_signals(self, k: int, part: slice) -> np.ndarray:
+        """:meth:`_signals` of each hub-noise band, the samples of ``part`` (bands, n, 13)."""
+        key = ("band_signals", k, part.start, part.stop)
+        if key not in self._cache:
+            d = self.drives[k]
+            sb = band_split_signals(self._signals(k)[0].T, d.rate_hz, self.edges_hz)
+            self._cache[key] = np.ascontiguousarray(sb.swapaxes(1, 2)[:, part])
+        return self._cache[key]
+
+    def _linear(self, k: int, part: slice, block: int
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """Block Gram matrices of ``[A, b]`` over ``part``, samples per block, and per band
+        (3, n_blocks, n_bands, P0 + 1, P0 + 1) (as :func:`block_grams` of
+        :func:`band_split`)."""
+        key = ("grams", k, part.start, part.stop, block)
+        if key not in self._cache:
+            z = self._rows(k)[:, part]
+            g, n = row_block_grams(z, z, block)
+            bg = None
+            if self.edges_hz is not None:
+                m = self._signals(k)[1]
+                ss = _block_products(self._band_signals(k, part),
+                                     self._band_signals(k, part), block)
+                bg = np.einsum("esp,bjst,etq->ebjpq", m, ss.swapaxes(0, 1), m)
+            self._cache[key] = (g, n, bg)
+        return self._cache[key]
+
+    def grams(self, terms: Sequence[_Term], parts: Sequence[slice], block: int
+              ) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray] | None]:
+        """Per drive, the block Gram matrices of ``[A, E, b]`` over ``part`` (3, n_blocks,
+        P + 1, P + 1), the samples per block, and the same per hub-noise band (3, n_blocks,
+        n_bands, P + 1, P + 1; None when the hub noise is not estimated).
+
+        The effects' products are formed from their per-corner columns and the 13 signals
+        the rows are made of (:meth:`_signals`, :func:`_pieces`): the same sums, a
+        fraction of the memory traffic."""
+        grams, samples, bands = [], [], []
+        for k, (d, part) in enumerate(zip(self.drives, parts, strict=True)):
+            g, n, bg = self._linear(k, part, block)
+            if terms:
+                u, lev = _pieces(terms, d)
+                sig, m = self._signals(k)
+                up = u[part]
+                us = _block_products(up, sig[part], block)  # (blocks, m, 13)
+                uu = _block_products(up, up, block)
+                g = _augment(g, np.einsum("ekq,bks,esp->ebqp", lev, us, m),
+                             np.einsum("ekq,bkl,elr->ebqr", lev, uu, lev))
+                if bg is not None:
+                    ub = band_split_signals(u.T, d.rate_hz, self.edges_hz)
+                    ubp = np.ascontiguousarray(ub.swapaxes(1, 2)[:, part])  # (bands, n, m)
+                    us = _block_products(ubp, self._band_signals(k, part), block)
+                    uu = _block_products(ubp, ubp, block)  # (bands, blocks, m, m)
+                    bg = _augment(bg, np.einsum("ekq,jbks,esp->ebjqp", lev, us, m),
+                                  np.einsum("ekq,jbkl,elr->ebjqr", lev, uu, lev))
+            grams.append(g)
+            samples.append(n)
+            bands.append(bg)
+        return grams, samples, (bands if self.edges_hz is not None else None)
+
+    def noise_for(self, parts: Sequence[slice], n_extra: int,
+                  hub_s2: np.ndarray | None = None) -> list[DriveNoise] | None:
+        """The noise's expected share in the Gram matrices of the samples of ``parts`` (a
+        share of the drive's), with zeros for the effects' columns: they are taken as
+        noise-free (see :func:`diagnose_vehicle`); the hub noise starting from ``hub_s2``
+        (drives, components, bands) if given."""
         if self.noise is None:
             return None
-        out = {}
-        for g, (naa, nab) in self.noise.items():
-            d = self.drives[g // 3]
-            frac = len(range(*parts[g // 3].indices(d.n))) / d.n
-            aa = np.zeros((n_cols, n_cols))
-            ab = np.zeros(n_cols)
-            aa[:N_PARAMS, :N_PARAMS] = frac * naa
-            ab[:N_PARAMS] = frac * nab
-            out[g] = (aa, ab)
+        out = []
+        for k, (d, part, nz) in enumerate(zip(self.drives, parts, self.noise, strict=True)):
+            frac = len(range(*part.indices(d.n))) / d.n
+
+            def pad(m: np.ndarray, frac: float = frac) -> np.ndarray:
+                lead = m.shape[:-2]
+                return frac * _augment(m, np.zeros(lead + (n_extra, N_PARAMS + 1)),
+                                       np.zeros(lead + (n_extra, n_extra)))
+
+            s2 = nz.hub_s2 if hub_s2 is None else hub_s2[k]
+            out.append(DriveNoise(pad(nz.known), pad(nz.hub_unit), np.array(s2, float)))
         return out
-
-
-def _rows(drives: Sequence[DriveRegressors], terms: Sequence[_Term],
-          parts: Sequence[slice]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    rows, rhs, group, tidx = [], [], [], []
-    for k, (d, part) in enumerate(zip(drives, parts, strict=True)):
-        a, b = _equation_rows(d)
-        extra = [t.columns(d) for t in terms]
-        if extra:
-            a = np.concatenate([a, *extra], axis=2)
-        n = np.arange(d.n)[part]
-        for e in range(3):
-            rows.append(a[e, part])
-            rhs.append(b[e, part])
-            group.append(np.full(n.size, 3 * k + e))
-            tidx.append(n + 10**9 * k)
-    return np.vstack(rows), np.concatenate(rhs), np.concatenate(group), np.concatenate(tidx)
 
 
 @dataclass
@@ -320,75 +478,41 @@ class _Fitted:
     fitted: np.ndarray
     names: list[str]
     group_sigma: np.ndarray | None = None
+    hub_noise_s2: np.ndarray | None = None  # (drives, components, bands)
 
 
 def _fit(data: _Data, terms: Sequence[_Term], parts: Sequence[slice], fitted_base: np.ndarray,
-         block: int) -> _Fitted:
-    a, b, g, t = _rows(data.drives, terms, parts)
-    noise = data.noise_for(parts, a.shape[1])
-    fitted = np.concatenate([fitted_base, np.ones(a.shape[1] - N_PARAMS, bool)])
+         block: int, screen: bool = False, hub_start: np.ndarray | None = None,
+         hub_iterations: int | None = None) -> _Fitted | None:
+    """Noise-compensated weighted least squares of the linear model plus ``terms`` on
+    ``parts``, the hub noise estimated from this model's equation errors
+    (:func:`~fielddiag.vehicle.regression.compensated_least_squares`); jackknife
+    covariance over ``block``-sample blocks, or (``screen``) the normal matrix's."""
+    grams, samples, bands = data.grams(terms, parts, block)
+    q = grams[0].shape[-1] - 1 - N_PARAMS
+    fitted = np.concatenate([fitted_base, np.ones(q, bool)])
     for term in terms:
         fitted[term.replaced_columns()] = False
-    w = weighted_least_squares(a, b, g, t, fitted, block, noise)
-    names = list(PARAM_NAMES) + [f"{term.label}.{p}" for term in terms
-                                 for p in term.linear_params()]
-    return _Fitted(tuple(terms), w.theta, w.cov, w.fitted, names, w.group_sigma)
+    iters = data.hub_iterations if hub_iterations is None else hub_iterations
+    try:
+        w = compensated_least_squares(
+            grams, samples, fitted, data.noise_for(parts, q, hub_start), bands,
+            iters if bands is not None else 0, jackknife=not screen,
+            bias_correction=data.bias_correction and not screen, normal_covariance=screen)
+    except np.linalg.LinAlgError:
+        w = None
+    if w is None or not np.all(np.isfinite(w.theta[w.fitted])):
+        if not terms:
+            raise InsufficientDataError(
+                "the linear full-vehicle model cannot be fitted to these drives (singular "
+                "equations): drive longer, over a rough road")
+        return None  # a candidate whose columns leave the equations singular: not a model
+    return _Fitted(tuple(terms), w.theta, w.cov, w.fitted, _names(terms), w.group_sigma,
+                   w.hub_noise_s2)
 
 
 def _names(terms: Sequence[_Term]) -> list[str]:
     return list(PARAM_NAMES) + [f"{t.label}.{p}" for t in terms for p in t.linear_params()]
-
-
-class _Screen:
-    """Fast fixed-weight least squares for screening many candidates: the linear columns'
-    weighted normal equations (noise-compensated, the weights of the linear fit) are summed
-    once per equation group; a candidate adds only its own columns' products."""
-
-    def __init__(self, data: _Data, parts: Sequence[slice], fitted_base: np.ndarray,
-                 sigma: np.ndarray) -> None:
-        p = N_PARAMS
-        self.data, self.fitted_base = data, fitted_base
-        self.g, self.h = np.zeros((p, p)), np.zeros(p)
-        self.items = []
-        noise = data.noise_for(parts, p) or {}
-        for k, (d, part) in enumerate(zip(data.drives, parts, strict=True)):
-            a, b = _equation_rows(d)
-            for e in range(3):
-                w2 = 1.0 / sigma[3 * k + e] ** 2
-                ae, be = a[e, part], b[e, part]
-                self.g += w2 * ae.T @ ae
-                self.h += w2 * ae.T @ be
-                if 3 * k + e in noise:
-                    naa, nab = noise[3 * k + e]
-                    self.g -= w2 * naa
-                    self.h -= w2 * nab
-                self.items.append((d, e, part, w2, ae, be))
-
-    def fit(self, terms: Sequence[_Term]) -> _Fitted:
-        p = N_PARAMS
-        q = sum(len(t.linear_params()) for t in terms)
-        g = np.zeros((p + q, p + q))
-        h = np.zeros(p + q)
-        g[:p, :p], h[:p] = self.g, self.h
-        for d, e, part, w2, ae, be in self.items:
-            ex = np.concatenate([t.columns(d)[e, part] for t in terms], axis=1)
-            g[:p, p:] += w2 * ae.T @ ex
-            g[p:, p:] += w2 * ex.T @ ex
-            h[p:] += w2 * ex.T @ be
-        g[p:, :p] = g[:p, p:].T
-        fitted = np.concatenate([self.fitted_base, np.ones(q, bool)])
-        for t in terms:
-            fitted[t.replaced_columns()] = False
-        cols = np.flatnonzero(fitted)
-        gs = g[np.ix_(cols, cols)]
-        sc = np.sqrt(np.abs(np.diag(gs)))
-        sc[sc == 0] = 1.0
-        inv = np.linalg.pinv(gs / np.outer(sc, sc))
-        theta = np.full(p + q, np.nan)
-        theta[cols] = inv @ (h[cols] / sc) / sc
-        cov = np.zeros((p + q, p + q))
-        cov[np.ix_(cols, cols)] = inv / np.outer(sc, sc)
-        return _Fitted(tuple(terms), theta, cov, fitted, _names(terms))
 
 
 def _predict(f: _Fitted, d: DriveRegressors) -> np.ndarray:
@@ -472,6 +596,7 @@ class VehicleDiagnosis:
     cross_validation: list[dict[str, Any]] = field(default_factory=list)
     fit: list[dict[str, Any]] = field(default_factory=list)
     vehicle: dict[str, Any] = field(default_factory=dict)
+    noise: dict[str, Any] = field(default_factory=dict)
 
     @property
     def verdict(self) -> str:
@@ -503,6 +628,7 @@ class VehicleDiagnosis:
             "linear_model_adequate": ch is base,
             "method": self.method,
             "vehicle": self.vehicle,
+            "noise": self.noise,
         }
 
 
@@ -705,41 +831,65 @@ def _diagnose(before: VehicleRecording, after: VehicleRecording, added_mass_kg: 
               config: VehicleDiagnoseConfig, say: Callable[[str], None]) -> VehicleDiagnosis:
     icfg = config.identify
     say("preparing the drives (integration, band-pass)")
-    drives = []
-    noise: dict[int, tuple[np.ndarray, np.ndarray]] | None = (
-        {} if icfg.noise_compensation else None)
-    for k, (rec, dm, pos) in enumerate(((before, 0.0, (0.0, 0.0)),
-                                        (after, added_mass_kg, at))):
+    recs = (before, after)
+    drives = []  # prepared flat in frequency: for the traces shown
+    raws = []
+    for rec, dm, pos in ((before, 0.0, (0.0, 0.0)), (after, added_mass_kg, at)):
         d = prepare_drive(rec, icfg)
         d.added_mass_kg, d.added_mass_at_m = dm, pos
         d.start_s = _start_s(rec, icfg)
-        _RAW[id(d)] = (d, _raw_motion(rec, icfg))
+        raws.append(_raw_motion(rec, icfg))
+        _RAW[id(d)] = (d, raws[-1], None)
         drives.append(d)
-        if noise is not None:  # as the identification (the hubs taken as noisy as the body)
-            noise.update(noise_normal_equations(d, [body_noise_std_mps2(rec)] * 8,
-                                                filter_response(rec, icfg), 3 * k,
-                                                car_accel_noise_std_mps2(rec)))
-    data = _Data(drives, noise, [int(round((1 - config.holdout_fraction) * d.n))
-                                 for d in drives])
-    fit_parts = [slice(0, s) for s in data.split]
-    hold_parts = [slice(s, None) for s in data.split]
-    all_parts = [slice(None)] * len(drives)
     base_fitted = np.ones(N_PARAMS, bool)
     for col, sig in ((16, "a_long"), (17, "a_lat")):
         rms = max(float(np.sqrt(np.mean(getattr(d, sig) ** 2))) for d in drives)
         base_fitted[col] = rms > 0.02
     block = max(1, int(round(icfg.block_s * drives[0].rate_hz)))
+    # the identification's noise model: the frequency weighting, the body sensors' and car
+    # signals' noise known, the hubs' estimated from each model's equation errors
+    fit_drives, weights = list(drives), [None] * len(drives)
+    noise, edges, body_sigma = None, None, None
+    if icfg.noise_compensation:
+        body_sigma = [body_noise_std_mps2(rec) for rec in recs]
+        car_sigma = [car_accel_noise_std_mps2(rec) for rec in recs]
+        if icfg.noise_weighting:
+            say("weighting the band by the noise")
+            weights, fit_drives = weighted_drives(recs, drives, base_fitted, block, icfg,
+                                                  body_sigma, car_sigma)
+        spectrum = icfg.hub_noise == "spectrum"
+        all_edges = band_edges_hz(icfg.band_hz, icfg.hub_noise_bands)
+        noise = [drive_noise(rec, d, icfg, wt, all_edges, bs, cs,
+                             icfg.hub_noise_correlation if spectrum else ())
+                 for rec, d, wt, bs, cs in zip(recs, fit_drives, weights, body_sigma,
+                                               car_sigma, strict=True)]
+        edges = all_edges if spectrum else None
+    for d, d0, raw, wt in zip(fit_drives, drives, raws, weights, strict=True):
+        d.start_s = d0.start_s
+        _RAW[id(d)] = (d, raw, wt)
+    data = _Data(fit_drives, noise, [int(round((1 - config.holdout_fraction) * d.n))
+                                     for d in fit_drives], edges, icfg.hub_noise_iterations,
+                 icfg.jackknife_bias)
+    fit_parts = [slice(0, s) for s in data.split]
+    hold_parts = [slice(s, None) for s in data.split]
+    all_parts = [slice(None)] * len(drives)
 
-    def fit(terms: Sequence[_Term], parts=fit_parts) -> _Fitted:
+    def fit(terms: Sequence[_Term], parts=fit_parts) -> _Fitted | None:
         return _fit(data, terms, parts, base_fitted, block)
 
-    def best_shape(screen: _Screen, prefix: tuple[_Term, ...], effect: str,
-                   corners: tuple[str, ...]) -> CandidateFit:
-        r = np.concatenate([_RAW[id(d)][1].r[CORNERS.index(c)] for d in drives
-                            for c in corners])
+    def screen_fit(terms: Sequence[_Term]) -> _Fitted | None:
+        # the hub noise's fixed point in half the rounds (as the jackknife replicates)
+        return _fit(data, terms, fit_parts, base_fitted, block, screen=True,
+                    hub_iterations=max(1, icfg.hub_noise_iterations // 2))
+
+    def best_shape(prefix: tuple[_Term, ...], effect: str, corners: tuple[str, ...]
+                   ) -> CandidateFit:
+        r = np.concatenate([raw.r[CORNERS.index(c)] for raw in raws for c in corners])
         best = None
         for shape in _shape_grid(effect, r):
-            f = screen.fit((*prefix, _Term(effect, corners, shape)))
+            f = screen_fit((*prefix, _Term(effect, corners, shape)))
+            if f is None:
+                continue
             cand = _candidate(f, data, fit_parts, hold_parts)
             if best is None or cand.nrmse_fit < best.nrmse_fit:
                 best = cand
@@ -750,10 +900,8 @@ def _diagnose(before: VehicleRecording, after: VehicleRecording, added_mass_kg: 
     base = _candidate(base_fit, data, fit_parts, hold_parts)
     # effects act on the travel from the unloaded car's rest: the drive with the mass added
     # rests lower by the static sag the linear model gives
-    for d in drives:
-        raw = _RAW[id(d)][1]
+    for d, raw in zip(drives, raws, strict=True):
         raw.r = raw.r + _static_sag_m(base_fit.theta, d)[:, None]
-    screen = _Screen(data, fit_parts, base_fitted, base_fit.group_sigma)
     places = [(c,) for c in CORNERS]
     if config.axle_candidates:
         places += list(AXLES.values())
@@ -768,13 +916,15 @@ def _diagnose(before: VehicleRecording, after: VehicleRecording, added_mass_kg: 
             for pl in places:
                 if used & set(pl):
                     continue
-                screened.append(best_shape(screen, prefix, e, pl))
-        # the most promising few fitted exactly (reweighted, sandwich covariance)
+                cand = best_shape(prefix, e, pl)
+                if cand is not None:
+                    screened.append(cand)
+        # the most promising few fitted exactly (jackknife covariance)
         promising = sorted((c for c in screened
                             if compare(chosen, c).beats(c.n_params - chosen.n_params)),
                            key=lambda c: c.mse_validation)[:config.exact_fits]
-        cands = [_candidate(fit(c.extra["fitted"].terms), data, fit_parts, hold_parts)
-                 for c in promising]
+        exact = [fit(c.extra["fitted"].terms) for c in promising]
+        cands = [_candidate(f, data, fit_parts, hold_parts) for f in exact if f is not None]
         tried.extend(cands)
         tried.extend(c for c in screened if c not in promising)
         if chosen is base:
@@ -792,7 +942,7 @@ def _diagnose(before: VehicleRecording, after: VehicleRecording, added_mass_kg: 
         say("chosen so far: " + ", ".join(chosen.effects))
     say("refitting on all the data")
     base_all = fit((), all_parts)
-    chosen_all = fit(prefix, all_parts) if prefix else base_all
+    chosen_all = (fit(prefix, all_parts) or chosen.extra["fitted"]) if prefix else base_all
     names = [rec.name or rec.label or ("before", "after")[k]
              for k, rec in enumerate((before, after))]
     findings = []
@@ -800,22 +950,28 @@ def _diagnose(before: VehicleRecording, after: VehicleRecording, added_mass_kg: 
     base_cmp = compare(base, chosen) if prefix else None
     for k, term in enumerate(prefix):
         upto = fit(prefix[:k + 1]) if k + 1 < len(prefix) else chosen.extra["fitted"]
-        _, nrmse_after = _residual(upto, drives, hold_parts)
+        _, nrmse_after = _residual(upto, fit_drives, hold_parts)
         single = fit((term,), all_parts)
-        where = _windows(base_all, single, drives, names, config.window_s)
+        where = ([] if single is None else
+                 _windows(base_all, single, fit_drives, names, config.window_s))
         findings.append(_effect_finding(term, chosen_all, base_cmp, base, chosen, nrmse_prev,
                                         nrmse_after, where))
         nrmse_prev = nrmse_after
     findings.extend(_mismatches(chosen_all, config.mismatch_tolerance, config.mismatch_z))
     cv = []
     for k, rec in enumerate(validate):
+        if rec.added_mass_kg and rec.added_mass_at_m is None:
+            raise InvalidValueError(f"{rec.name or 'a validate drive'} carries an added "
+                                    "mass but not where it sits; record added_mass_at_m")
         d = prepare_drive(rec, icfg)
-        _RAW[id(d)] = (d, _raw_motion(rec, icfg))
-        if rec.added_mass_kg:
-            if rec.added_mass_at_m is None:
-                raise InvalidValueError(f"{rec.name or 'a validate drive'} carries an added "
-                                        "mass but not where it sits; record added_mass_at_m")
-            d.added_mass_at_m = tuple(float(v) for v in rec.added_mass_at_m)
+        wt = None
+        if icfg.noise_compensation and icfg.noise_weighting:  # weighted as the fit drives
+            wt = noise_weighting(d, base_all.theta[:N_PARAMS], [body_noise_std_mps2(rec)] * 8,
+                                 car_accel_noise_std_mps2(rec), icfg.band_hz)
+            d = prepare_drive(rec, icfg, wt)
+        raw = _raw_motion(rec, icfg)
+        raw.r = raw.r + _static_sag_m(base_all.theta, d)[:, None]
+        _RAW[id(d)] = (d, raw, wt)
         _, nb = _residual(base_all, [d], [slice(None)])
         _, nc = _residual(chosen_all, [d], [slice(None)])
         cv.append({"session": rec.name or rec.label or f"validate_{k + 1}",
@@ -826,8 +982,14 @@ def _diagnose(before: VehicleRecording, after: VehicleRecording, added_mass_kg: 
         f"(band {lo:g}-{hi:g} Hz, {drives[0].rate_hz:g} Hz), the 3 body equations linear in "
         "18 parameters plus, per candidate, a library effect's force at one corner (or on "
         "both corners of an axle) with the corner's lever arms; weighted least squares "
-        f"(noise-bias compensated) on the first {100 * (1 - config.holdout_fraction):.0f} % "
-        "of each drive, body accelerations predicted on the last "
+        + ("with the identification's noise model (weighted in frequency by the noise's share "
+           "of the equation errors, sensor-noise bias compensated: body sensors' noise from "
+           "their redundancy, the hubs' band by band from each model's own equation errors; "
+           "the effects' columns taken as noise-free) "
+           if icfg.noise_compensation and icfg.noise_weighting and edges is not None else
+           "(noise-bias compensated) " if icfg.noise_compensation else "")
+        + f"on the first {100 * (1 - config.holdout_fraction):.0f} % "
+        "of each drive, body accelerations (weighted like the fit) predicted on the last "
         f"{100 * config.holdout_fraction:.0f} %; the simplest model that predicts them "
         "significantly better (paired block t >= 3, gain >= 2 % per parameter, parameters "
         f"physical and > 2 std) chosen, greedily up to {config.max_effects} effects; "
@@ -848,7 +1010,24 @@ def _diagnose(before: VehicleRecording, after: VehicleRecording, added_mass_kg: 
         linear_model=_model_dict(base_all), augmented_model=_model_dict(chosen_all),
         sessions=sessions, band_hz=(lo, hi), method=method, cross_validation=cv,
         fit=_fit_traces(base_all, chosen_all, drives, names, hold_parts),
-        vehicle=before.geometry.to_dict())
+        vehicle=before.geometry.to_dict(),
+        noise=_noise_dict(body_sigma, edges, base_all, chosen_all, weights))
+
+
+def _noise_dict(body_sigma: Sequence[float] | None, edges: np.ndarray | None,
+                base: _Fitted, chosen: _Fitted, weights: Sequence[Any]) -> dict[str, Any]:
+    """The noise the compensation used: the body sensors' per drive; the hubs' per drive
+    and band (white-equivalent, each hub's variance) as the linear and the chosen model's
+    equation errors gave it."""
+    if body_sigma is None:
+        return {}
+    out: dict[str, Any] = {"body_noise_std_mps2": [float(v) for v in body_sigma],
+                           "frequency_weighting": weights[0] is not None}
+    if edges is not None:
+        out["band_edges_hz"] = [float(v) for v in edges]
+        for label, f in (("linear", base), ("chosen", chosen)):
+            out[f"hub_noise_std_mps2_{label}"] = np.sqrt(f.hub_noise_s2[:, 0]).tolist()
+    return out
 
 
 def _start_s(rec: VehicleRecording, cfg: VehicleIdentifyConfig) -> float:
