@@ -256,6 +256,22 @@ def _static_sag_m(theta: np.ndarray, d: DriveRegressors) -> np.ndarray:
     return lever.T @ np.linalg.solve(stiff, load)
 
 
+#: Largest static sag [m] under the added mass taken from a linear fit; beyond it (or with
+#: a corner stiffness <= 0) the fit is not a car's: a strongly nonlinear car (a damper
+#: with rebound ~3 x its compression) can drive the linear model towards zero.
+MAX_SAG_M = 0.15
+
+
+def _plausible_sag_m(theta: np.ndarray, d: DriveRegressors) -> np.ndarray:
+    """:func:`_static_sag_m`, or zeros (each drive's travel about its own rest, as before
+    the sag was applied) when the linear model behind it is not plausible."""
+    k = np.asarray(theta, float)[_K0:_K0 + 4]
+    if not np.all(np.isfinite(k) & (k > 0)):
+        return np.zeros(4)
+    sag = _static_sag_m(theta, d)
+    return sag if np.all(np.abs(sag) <= MAX_SAG_M) else np.zeros(4)
+
+
 def _raw_motion(rec: VehicleRecording, cfg: VehicleIdentifyConfig) -> _RawMotion:
     fs = float(rec.sample_rate_hz)
     lo, hi = cfg.band_hz
@@ -899,9 +915,9 @@ def _diagnose(before: VehicleRecording, after: VehicleRecording, added_mass_kg: 
     base_fit = fit(())
     base = _candidate(base_fit, data, fit_parts, hold_parts)
     # effects act on the travel from the unloaded car's rest: the drive with the mass added
-    # rests lower by the static sag the linear model gives
+    # rests lower by the static sag the linear model gives (if it is plausible)
     for d, raw in zip(drives, raws, strict=True):
-        raw.r = raw.r + _static_sag_m(base_fit.theta, d)[:, None]
+        raw.r = raw.r + _plausible_sag_m(base_fit.theta, d)[:, None]
     places = [(c,) for c in CORNERS]
     if config.axle_candidates:
         places += list(AXLES.values())
@@ -970,7 +986,7 @@ def _diagnose(before: VehicleRecording, after: VehicleRecording, added_mass_kg: 
                                  car_accel_noise_std_mps2(rec), icfg.band_hz)
             d = prepare_drive(rec, icfg, wt)
         raw = _raw_motion(rec, icfg)
-        raw.r = raw.r + _static_sag_m(base_all.theta, d)[:, None]
+        raw.r = raw.r + _plausible_sag_m(base_all.theta, d)[:, None]
         _RAW[id(d)] = (d, raw, wt)
         _, nb = _residual(base_all, [d], [slice(None)])
         _, nc = _residual(chosen_all, [d], [slice(None)])
