@@ -9,8 +9,17 @@ Method (equation error, as the identification):
 1. Both drives are prepared as for the identification
    (:func:`fielddiag.vehicle.identify.prepare_drive`: integrated, band-passed, decimated;
    suspension travel and rate per corner) and the three body equations written linear in
-   the 18 parameters (:mod:`fielddiag.vehicle.regression`), the added mass fixing the scale,
-   the sensor-noise bias compensated.
+   the 18 parameters (:mod:`fielddiag.vehicle.regression`), the added mass fixing the scale.
+   The identification's noise model (step 3 of :mod:`fielddiag.vehicle.identify`): the
+   drives weighted in frequency by one over the noise's share of the equation errors
+   (:func:`~fielddiag.vehicle.identify.weighted_drives`); the sensor-noise bias
+   compensated, the body sensors' noise from their redundancy, the car signals' above
+   fs/4, the hub sensors' (which holds what a gentle anti-alias filter folds into the
+   band) estimated band by band from the equation errors of the model being fitted, with
+   a covariance common to the left and right hub
+   (:func:`~fielddiag.vehicle.regression.compensated_least_squares`), for the linear
+   model and every candidate alike (a model that leaves a force out shows it as hub
+   noise; the model with it does not).
 2. A candidate effect of the library at a corner (or on both corners of an axle with one
    set of parameters) adds its force, evaluated on that corner's measured travel and rate,
    to the three equations with the corner's lever arms ``[1, x, y]``. Its force is linear in
@@ -18,16 +27,32 @@ Method (equation error, as the identification):
    stiffness, compression/rebound damping...) once its shape parameters (bump-stop gap,
    friction smoothing velocity) are fixed; those are searched on a short grid, chosen on
    the fitted part. An effect that replaces the linear damper or spring (asymmetric
-   damping) takes that corner's column out.
+   damping) takes that corner's column out. The force is evaluated at
+   :data:`FORCE_RATE_HZ` or more on the interpolated motion, its harmonics above the
+   recording's Nyquist frequency dropped, then weighted and filtered like the drive.
+   Its columns are taken as noise-free: the noise of the measured travel and rate passes
+   through the force into them, but measured on a simulated 200 Hz drive (a noise-free,
+   alias-free reading of the same motion as reference; 500 Hz in brackets) it is 1e-4 of
+   the column's energy for the damping effects (asymmetric, quadratic; 1e-5), 5e-4 to
+   1.4e-3 for friction (4e-5 to 8e-5), 2.4e-2 for the cubic spring (3e-3) and 5e-2 for a
+   bump stop 2 cm out (7e-3: the travel's low-frequency noise blurs the knee), against
+   1e-4 (1e-5) for the linear travel column the compensation is for. Left
+   uncompensated, such noise pulls the effect's own parameter towards zero by about that
+   share (errors in variables): below 0.2 % for friction and the dampers, up to a few %
+   for a bump stop's stiffness at 200 Hz.
 3. Every model is fitted by weighted least squares on the first 70 % of each drive and
    predicts the body accelerations of the last 30 % (the four body sensors, from the
-   measured suspension motion); the selection rule of the single-corner diagnosis
-   (:func:`fielddiag.diagnose.selection.select_model`: a significant paired-block
-   improvement worth its parameters, parameters physical) picks the simplest model, then
-   greedily a further effect at another corner on top of it, up to ``max_effects``.
+   measured suspension motion, weighted in frequency like the fit); the selection rule
+   of the single-corner diagnosis (:func:`fielddiag.diagnose.selection.select_model`: a
+   significant paired-block improvement worth its parameters, parameters physical)
+   picks the simplest model, then greedily a further effect at another corner on top of
+   it, up to ``max_effects``. The many candidates are screened first (no covariance, half
+   the hub-noise rounds, the normal matrix's covariance), the most promising refitted
+   with the full estimate.
 4. The chosen model is fitted again on all the data for the reported parameters and their
-   standard deviations (block-sandwich covariance). Where in time: the windows where the
-   chosen model lowers the residual most.
+   standard deviations (delete-a-block jackknife that repeats the whole estimate, the hub
+   noise included). Where in time: the windows where the chosen model lowers the
+   residual most.
 5. Left/right mismatch: per axle, the two corners' damping and stiffness of the chosen
    model, their ratio with its delta-method standard deviation; a corner is reported when
    the ratio departs from 1 by more than ``mismatch_tolerance`` (manufacturing spread)
