@@ -62,6 +62,7 @@ Method (equation error, as the identification):
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
@@ -96,6 +97,7 @@ from fielddiag.vehicle.regression import (
     PARAM_NAMES,
     DriveNoise,
     DriveRegressors,
+    WlsResult,
     band_split_signals,
     compensated_least_squares,
     equation_rows,
@@ -140,6 +142,12 @@ class VehicleDiagnoseConfig:
         One-sided z the log ratio must exceed the tolerance by (1.645: 95 %).
     window_s : float
         Length of the time windows reported as where a finding acts [s].
+    sag_passes : int
+        Most searches with the static sag (the travel offset of the drive with the mass
+        added, which the travel-dependent effects see) from the model the previous search
+        chose.
+    sag_tolerance_m : float
+        Change of the static sag below which no further search is made [m].
     """
 
     identify: VehicleIdentifyConfig = VehicleIdentifyConfig(refine=False)
@@ -151,6 +159,8 @@ class VehicleDiagnoseConfig:
     mismatch_tolerance: float = 0.20
     mismatch_z: float = 1.645
     window_s: float = 5.0
+    sag_passes: int = 3
+    sag_tolerance_m: float = 0.001
 
 
 # --------------------------------------------------------------------------- candidates
@@ -343,6 +353,28 @@ _COLUMNS: dict[tuple, tuple[DriveRegressors, np.ndarray]] = {}
 _RAW: dict[int, tuple[DriveRegressors, _RawMotion,
                       Callable[[np.ndarray], np.ndarray] | None]] = {}
 _ROWS: dict[int, tuple[DriveRegressors, np.ndarray, np.ndarray]] = {}
+
+
+@functools.cache
+def _depends_on_travel(effect: str) -> bool:
+    """Whether an effect's force changes with the suspension's travel (at typical values
+    and a few travels and rates)."""
+    cls = get_effect(effect)
+    if effect not in _MODELS:
+        _MODELS[effect] = ForceModel([cls()])
+    model = _MODELS[effect]
+    values = {p.name: (p.typical if p.scales_with_force or p.default is None else p.default)
+              for p in cls.params}
+    r = np.repeat([-0.08, -0.03, 0.0, 0.03, 0.08], 3)
+    rd = np.tile([-0.2, 0.05, 0.3], 5)
+    f = model.force(r, rd, 0.0, model.vector(values))[0].reshape(5, 3)
+    return bool(np.any(np.abs(f - f[2]) > 1e-9 * (1.0 + np.abs(f[2]))))
+
+
+def _forget_travel_columns() -> None:
+    """Drop the cached columns of the effects that depend on the travel (it moved)."""
+    for key in [k for k in _COLUMNS if _depends_on_travel(k[0].effect)]:
+        del _COLUMNS[key]
 
 
 def _equation_rows(d: DriveRegressors) -> tuple[np.ndarray, np.ndarray]:
@@ -545,6 +577,7 @@ class _Fitted:
     names: list[str]
     group_sigma: np.ndarray | None = None
     hub_noise_s2: np.ndarray | None = None  # (drives, components, bands)
+    hub_fallback: bool = False  # the hub noise taken as the body sensors' (see _fit)
 
 
 def _fit(data: _Data, terms: Sequence[_Term], parts: Sequence[slice], fitted_base: np.ndarray,
@@ -560,13 +593,23 @@ def _fit(data: _Data, terms: Sequence[_Term], parts: Sequence[slice], fitted_bas
     for term in terms:
         fitted[term.replaced_columns()] = False
     iters = data.hub_iterations if hub_iterations is None else hub_iterations
-    try:
-        w = compensated_least_squares(
-            grams, samples, fitted, data.noise_for(parts, q, hub_start), bands,
-            iters if bands is not None else 0, jackknife=not screen,
-            bias_correction=data.bias_correction and not screen, normal_covariance=screen)
-    except np.linalg.LinAlgError:
-        w = None
+
+    def solve(rounds: int) -> WlsResult | None:
+        try:
+            return compensated_least_squares(
+                grams, samples, fitted, data.noise_for(parts, q, hub_start), bands, rounds,
+                jackknife=not screen, bias_correction=data.bias_correction and not screen,
+                normal_covariance=screen)
+        except np.linalg.LinAlgError:
+            return None
+
+    w = solve(iters if bands is not None else 0)
+    fallback = False
+    if bands is not None and iters > 0 and not _is_car(w):
+        # a model that leaves a large force out shows it as hub noise; compensated, that
+        # "noise" can take the signal with it (mass or a corner's stiffness to <= 0): such
+        # a model is fitted with the hubs as noisy as the body sensors instead
+        w, fallback = solve(0), True
     if w is None or not np.all(np.isfinite(w.theta[w.fitted])):
         if not terms:
             raise InsufficientDataError(
@@ -574,7 +617,17 @@ def _fit(data: _Data, terms: Sequence[_Term], parts: Sequence[slice], fitted_bas
                 "equations): drive longer, over a rough road")
         return None  # a candidate whose columns leave the equations singular: not a model
     return _Fitted(tuple(terms), w.theta, w.cov, w.fitted, _names(terms), w.group_sigma,
-                   w.hub_noise_s2)
+                   w.hub_noise_s2, fallback)
+
+
+def _is_car(w: WlsResult | None) -> bool:
+    """A fit with finite parameters, a positive mass and positive corner stiffness and
+    damping (where fitted)."""
+    if w is None or not np.all(np.isfinite(w.theta[w.fitted])):
+        return False
+    corners = np.arange(_K0, _C0 + 4)
+    th = w.theta
+    return bool(th[0] > 0 and np.all(th[corners][w.fitted[corners]] > 0))
 
 
 def _names(terms: Sequence[_Term]) -> list[str]:
@@ -701,8 +754,6 @@ class VehicleDiagnosis:
 def _model_dict(f: _Fitted) -> dict[str, Any]:
     """Body and corners of a fitted model, each ``{"value", "std"}`` (the identification's
     keys)."""
-    from fielddiag.vehicle.regression import WlsResult
-
     p = N_PARAMS
     w = WlsResult(f.theta[:p], f.cov[:p, :p], f.fitted[:p], np.ones(1), 1)
     est = _derived(w)
@@ -964,48 +1015,72 @@ def _diagnose(before: VehicleRecording, after: VehicleRecording, added_mass_kg: 
     say("fitting the linear model")
     base_fit = fit(())
     base = _candidate(base_fit, data, fit_parts, hold_parts)
-    # effects act on the travel from the unloaded car's rest: the drive with the mass added
-    # rests lower by the static sag the linear model gives (if it is plausible)
-    for d, raw in zip(drives, raws, strict=True):
-        raw.r = raw.r + _plausible_sag_m(base_fit.theta, d)[:, None]
     places = [(c,) for c in CORNERS]
     if config.axle_candidates:
         places += list(AXLES.values())
-    say(f"trying {len(config.effects)} effects at {len(places)} places")
-    tried: list[CandidateFit] = []
-    chosen = base
-    prefix: tuple[_Term, ...] = ()
-    for _round in range(config.max_effects):
-        used = {c for t in prefix for c in t.corners}
-        screened = []
-        for e in config.effects:
-            for pl in places:
-                if used & set(pl):
-                    continue
-                cand = best_shape(prefix, e, pl)
-                if cand is not None:
-                    screened.append(cand)
-        # the most promising few fitted exactly (jackknife covariance)
-        promising = sorted((c for c in screened
-                            if compare(chosen, c).beats(c.n_params - chosen.n_params)),
-                           key=lambda c: c.mse_validation)[:config.exact_fits]
-        exact = [fit(c.extra["fitted"].terms) for c in promising]
-        cands = [_candidate(f, data, fit_parts, hold_parts) for f in exact if f is not None]
-        tried.extend(cands)
-        tried.extend(c for c in screened if c not in promising)
-        if chosen is base:
-            sel = select_model(base, cands)
-            nxt = sel.chosen if sel.chosen is not base else None
-        else:
-            ok = [c for c in cands if c.physical
-                  and compare(chosen, c).beats(c.n_params - chosen.n_params)
-                  and compare(base, c).beats(c.n_params - base.n_params)]
-            nxt = min(ok, key=lambda c: c.mse_validation) if ok else None
-        if nxt is None:
+    travel = [raw.r for raw in raws]
+
+    def search(sag_theta: np.ndarray) -> tuple[CandidateFit, tuple[_Term, ...],
+                                               list[CandidateFit]]:
+        """The greedy search with the travel shifted by the static sag ``sag_theta``'s
+        stiffness gives: effects act on the travel from the unloaded car's rest, and the
+        drive with the mass added rests lower."""
+        for d, raw, r in zip(drives, raws, travel, strict=True):
+            raw.r = r + _plausible_sag_m(sag_theta, d)[:, None]
+        _forget_travel_columns()
+        say(f"trying {len(config.effects)} effects at {len(places)} places")
+        tried: list[CandidateFit] = []
+        chosen = base
+        prefix: tuple[_Term, ...] = ()
+        for _round in range(config.max_effects):
+            used = {c for t in prefix for c in t.corners}
+            screened = []
+            for e in config.effects:
+                for pl in places:
+                    if used & set(pl):
+                        continue
+                    cand = best_shape(prefix, e, pl)
+                    if cand is not None:
+                        screened.append(cand)
+            # the most promising few fitted exactly (jackknife covariance)
+            promising = sorted((c for c in screened
+                                if compare(chosen, c).beats(c.n_params - chosen.n_params)),
+                               key=lambda c: c.mse_validation)[:config.exact_fits]
+            exact = [fit(c.extra["fitted"].terms) for c in promising]
+            cands = [_candidate(f, data, fit_parts, hold_parts) for f in exact
+                     if f is not None]
+            tried.extend(cands)
+            tried.extend(c for c in screened if c not in promising)
+            if chosen is base:
+                sel = select_model(base, cands)
+                nxt = sel.chosen if sel.chosen is not base else None
+            else:
+                ok = [c for c in cands if c.physical
+                      and compare(chosen, c).beats(c.n_params - chosen.n_params)
+                      and compare(base, c).beats(c.n_params - base.n_params)]
+                nxt = min(ok, key=lambda c: c.mse_validation) if ok else None
+            if nxt is None:
+                break
+            chosen = nxt
+            prefix = chosen.extra["fitted"].terms
+            say("chosen so far: " + ", ".join(chosen.effects))
+        return chosen, prefix, tried
+
+    # the sag from the linear model first; a car with a strong effect biases the linear
+    # model (or collapses it), so the search is repeated with the sag of the model it
+    # chose until the two agree
+    sag_theta = base_fit.theta
+    for _pass in range(config.sag_passes):
+        chosen, prefix, tried = search(sag_theta)
+        if not prefix:
             break
-        chosen = nxt
-        prefix = chosen.extra["fitted"].terms
-        say("chosen so far: " + ", ".join(chosen.effects))
+        theta = chosen.extra["fitted"].theta
+        shift = max(float(np.max(np.abs(_plausible_sag_m(theta, d)
+                                        - _plausible_sag_m(sag_theta, d)))) for d in drives)
+        if shift <= config.sag_tolerance_m:
+            break
+        say(f"the chosen model moves the static sag by {1000 * shift:.1f} mm: searching again")
+        sag_theta = theta
     say("refitting on all the data")
     base_all = fit((), all_parts)
     chosen_all = (fit(prefix, all_parts) or chosen.extra["fitted"]) if prefix else base_all
@@ -1036,7 +1111,7 @@ def _diagnose(before: VehicleRecording, after: VehicleRecording, added_mass_kg: 
                                  car_accel_noise_std_mps2(rec), icfg.band_hz)
             d = prepare_drive(rec, icfg, wt)
         raw = _raw_motion(rec, icfg)
-        raw.r = raw.r + _plausible_sag_m(base_all.theta, d)[:, None]
+        raw.r = raw.r + _plausible_sag_m(sag_theta, d)[:, None]
         _RAW[id(d)] = (d, raw, wt)
         _, nb = _residual(base_all, [d], [slice(None)])
         _, nc = _residual(chosen_all, [d], [slice(None)])
