@@ -1067,14 +1067,18 @@ def _diagnose(before: VehicleRecording, after: VehicleRecording, added_mass_kg: 
         return chosen, prefix, tried
 
     # the sag from the linear model first; a car with a strong effect biases the linear
-    # model (or collapses it), so the search is repeated with the sag of the model it
-    # chose until the two agree
+    # model (or collapses it: no sag), so the search is repeated with the sag of the model
+    # it chose until the two agree, when that model has an effect that depends on the
+    # travel or there was no sag (else the sag moved only effects that lost anyway)
     sag_theta = base_fit.theta
     for _pass in range(config.sag_passes):
         chosen, prefix, tried = search(sag_theta)
         if not prefix:
             break
         theta = chosen.extra["fitted"].theta
+        had_sag = bool(np.any(_plausible_sag_m(sag_theta, drives[1])))
+        if had_sag and not any(_depends_on_travel(t.effect) for t in prefix):
+            break
         shift = max(float(np.max(np.abs(_plausible_sag_m(theta, d)
                                         - _plausible_sag_m(sag_theta, d)))) for d in drives)
         if shift <= config.sag_tolerance_m:
