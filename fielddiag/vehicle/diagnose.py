@@ -991,13 +991,26 @@ def _diagnose(before: VehicleRecording, after: VehicleRecording, added_mass_kg: 
     hold_parts = [slice(s, None) for s in data.split]
     all_parts = [slice(None)] * len(drives)
 
+    # fits of models whose effects do not depend on the travel: the same in every search
+    kept: dict[tuple, _Fitted | None] = {}
+
+    def remembered(key: tuple, terms: Sequence[_Term], make: Callable[[], _Fitted | None]
+                   ) -> _Fitted | None:
+        if any(_depends_on_travel(t.effect) for t in terms):
+            return make()
+        if key not in kept:
+            kept[key] = make()
+        return kept[key]
+
     def fit(terms: Sequence[_Term], parts=fit_parts) -> _Fitted | None:
-        return _fit(data, terms, parts, base_fitted, block)
+        return remembered((tuple(terms), parts is fit_parts, False), terms,
+                          lambda: _fit(data, terms, parts, base_fitted, block))
 
     def screen_fit(terms: Sequence[_Term]) -> _Fitted | None:
         # the hub noise's fixed point in half the rounds (as the jackknife replicates)
-        return _fit(data, terms, fit_parts, base_fitted, block, screen=True,
-                    hub_iterations=max(1, icfg.hub_noise_iterations // 2))
+        return remembered((tuple(terms), True, True), terms, lambda: _fit(
+            data, terms, fit_parts, base_fitted, block, screen=True,
+            hub_iterations=max(1, icfg.hub_noise_iterations // 2)))
 
     def best_shape(prefix: tuple[_Term, ...], effect: str, corners: tuple[str, ...]
                    ) -> CandidateFit:
