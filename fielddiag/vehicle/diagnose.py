@@ -1169,22 +1169,26 @@ def _diagnose(before: VehicleRecording, after: VehicleRecording, added_mass_kg: 
         sessions=sessions, band_hz=(lo, hi), method=method, cross_validation=cv,
         fit=_fit_traces(base_all, chosen_all, drives, names, hold_parts),
         vehicle=before.geometry.to_dict(),
-        noise=_noise_dict(body_sigma, edges, base_all, chosen_all, weights))
+        noise=_noise_dict(body_sigma, edges, base_all, chosen_all, weights,
+                          0.5 * fit_drives[0].rate_hz))
 
 
 def _noise_dict(body_sigma: Sequence[float] | None, edges: np.ndarray | None,
-                base: _Fitted, chosen: _Fitted, weights: Sequence[Any]) -> dict[str, Any]:
+                base: _Fitted, chosen: _Fitted, weights: Sequence[Any], nyquist_hz: float
+                ) -> dict[str, Any]:
     """The noise the compensation used: the body sensors' per drive; the hubs' per drive
     and band (white-equivalent, each hub's variance) as the linear and the chosen model's
-    equation errors gave it."""
+    equation errors gave it, or the body sensors' where that fit collapsed (``..._fallback``);
+    the bands' edges, the last one the analysis rate's Nyquist frequency."""
     if body_sigma is None:
         return {}
     out: dict[str, Any] = {"body_noise_std_mps2": [float(v) for v in body_sigma],
                            "frequency_weighting": weights[0] is not None}
     if edges is not None:
-        out["band_edges_hz"] = [float(v) for v in edges]
+        out["band_edges_hz"] = [float(min(v, nyquist_hz)) for v in edges]
         for label, f in (("linear", base), ("chosen", chosen)):
             out[f"hub_noise_std_mps2_{label}"] = np.sqrt(f.hub_noise_s2[:, 0]).tolist()
+            out[f"hub_noise_fallback_{label}"] = bool(f.hub_fallback)
     return out
 
 
