@@ -102,7 +102,6 @@ from fielddiag.vehicle.regression import (
     compensated_least_squares,
     equation_rows,
     mass_matrix,
-    row_block_grams,
 )
 
 __all__ = ["DEFAULT_EFFECTS", "VehicleDiagnoseConfig", "VehicleDiagnosis", "diagnose_vehicle",
@@ -416,9 +415,9 @@ def _augment(lin: np.ndarray, cross: np.ndarray, extra: np.ndarray) -> np.ndarra
 
 
 def _block_products(x: np.ndarray, y: np.ndarray, block: int) -> np.ndarray:
-    """``x^T y`` over consecutive time blocks, the blocks of :func:`row_block_grams` (from
-    the first sample, the last one shorter): (..., n_blocks, p, q) from (..., n, p) and
-    (..., n, q)."""
+    """``x^T y`` over consecutive time blocks, the blocks of
+    :func:`~fielddiag.vehicle.regression.block_grams` (from the first sample, the last one
+    shorter): (..., n_blocks, p, q) from (..., n, p) and (..., n, q)."""
     n = x.shape[-2]
     bs = max(1, int(block))
     full = n // bs
@@ -462,14 +461,6 @@ class _Data:
     bias_correction: bool = False
     _cache: dict[Any, Any] = field(default_factory=dict)
 
-    def _rows(self, k: int) -> np.ndarray:
-        """``[A, b]`` (3, n, P0 + 1) of drive ``k``."""
-        key = ("rows", k)
-        if key not in self._cache:
-            a, b = _equation_rows(self.drives[k])
-            self._cache[key] = np.concatenate([a, b[..., None]], axis=2)
-        return self._cache[key]
-
     def _signals(self, k: int) -> tuple[np.ndarray, np.ndarray]:
         """The 13 signals the rows are made of, ``S`` (n, 13: heave/pitch/roll
         acceleration, travel and rate per corner, the car's accelerations), and the map
@@ -498,16 +489,19 @@ class _Data:
 
     def _linear(self, k: int, part: slice, block: int
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-        """Block Gram matrices of ``[A, b]`` over ``part``, samples per block, and per band
-        (3, n_blocks, n_bands, P0 + 1, P0 + 1) (as :func:`block_grams` of
-        :func:`band_split`)."""
+        """Block Gram matrices of ``[A, b]`` over ``part`` (3, n_blocks, P0 + 1, P0 + 1),
+        samples per block, and the same per band (3, n_blocks, n_bands, P0 + 1, P0 + 1):
+        those of :func:`~fielddiag.vehicle.regression.block_grams` (of
+        :func:`~fielddiag.vehicle.regression.band_split`), from :meth:`_signals`."""
         key = ("grams", k, part.start, part.stop, block)
         if key not in self._cache:
-            z = self._rows(k)[:, part]
-            g, n = row_block_grams(z, z, block)
+            sig, m = self._signals(k)
+            sp = sig[part]
+            g = np.einsum("esp,bst,etq->ebpq", m, _block_products(sp, sp, block), m)
+            n = np.diff(np.append(np.arange(0, sp.shape[0], max(1, int(block))),
+                                  sp.shape[0]))
             bg = None
             if self.edges_hz is not None:
-                m = self._signals(k)[1]
                 ss = _block_products(self._band_signals(k, part),
                                      self._band_signals(k, part), block)
                 bg = np.einsum("esp,bjst,etq->ebjpq", m, ss.swapaxes(0, 1), m)

@@ -37,7 +37,7 @@ from fielddiag.channels import CORNERS
 __all__ = ["EQUATION_PAIRS", "PARAM_NAMES", "DriveNoise", "DriveRegressors", "WlsResult",
            "band_split", "band_split_signals", "block_grams", "compensated_least_squares",
            "equation_error_transfer", "equation_rows", "noise_gram", "noise_normal_equations",
-           "predict_body_accel", "regressors", "row_block_grams", "weighted_least_squares"]
+           "predict_body_accel", "regressors", "weighted_least_squares"]
 
 #: The parameters of the linear-in-parameters model, in order.
 PARAM_NAMES = ("mass_kg", "first_moment_x_kgm", "first_moment_y_kgm", "pitch_inertia_origin_kgm2",
@@ -487,43 +487,19 @@ def block_grams(d: DriveRegressors, block_samples: int, pairs: bool = False
     """
     a, b = equation_rows(d)
     aug = np.concatenate([a, b[..., None]], axis=2)  # (3, n, P + 1)
-    return row_block_grams(aug, aug, block_samples, pairs)
-
-
-def row_block_grams(left: np.ndarray, right: np.ndarray, block_samples: int,
-                    pairs: bool = False) -> tuple[np.ndarray, np.ndarray]:
-    """Products ``L^T R`` of two sets of equation rows over consecutive time blocks.
-
-    Parameters
-    ----------
-    left, right : ndarray (3, n, p) and (3, n, q)
-        Rows of the heave, pitch and roll equations (columns of regressors).
-    block_samples : int
-        Samples per block (from the first sample; the last block may be shorter).
-    pairs : bool
-        Also the products of different equations' rows (:data:`EQUATION_PAIRS`).
-
-    Returns
-    -------
-    grams : ndarray (3 or 6, n_blocks, p, q)
-    samples : ndarray (n_blocks,)
-        Samples in each block.
-    """
-    n = left.shape[1]
     bs = max(1, int(block_samples))
-    starts = np.arange(0, n, bs)
+    starts = np.arange(0, d.n, bs)
     which = EQUATION_PAIRS if pairs else EQUATION_PAIRS[:3]
-    lft = [g for g, _ in which]
-    rgt = [h for _, h in which]
-    full = n // bs
-    lb = left[:, : full * bs].reshape(3, full, bs, left.shape[2])
-    rb = right[:, : full * bs].reshape(3, full, bs, right.shape[2])
-    out = np.empty((len(which), starts.size, left.shape[2], right.shape[2]))
-    out[:, :full] = np.matmul(lb[lft].transpose(0, 1, 3, 2), rb[rgt])
+    left = [g for g, _ in which]
+    right = [h for _, h in which]
+    full = d.n // bs
+    blocks = aug[:, : full * bs].reshape(3, full, bs, aug.shape[2])
+    out = np.empty((len(which), starts.size, aug.shape[2], aug.shape[2]))
+    out[:, :full] = np.matmul(blocks[left].transpose(0, 1, 3, 2), blocks[right])
     if starts.size > full:  # the last, shorter block
-        out[:, full] = np.matmul(left[lft, full * bs:].transpose(0, 2, 1),
-                                 right[rgt, full * bs:])
-    return out, np.diff(np.append(starts, n))
+        seg = aug[:, full * bs:]
+        out[:, full] = np.matmul(seg[left].transpose(0, 2, 1), seg[right])
+    return out, np.diff(np.append(starts, d.n))
 
 
 #: Pairs of equations (heave 0, pitch 1, roll 2) whose products :func:`block_grams` and
