@@ -9,8 +9,17 @@ Method (equation error, as the identification):
 1. Both drives are prepared as for the identification
    (:func:`fielddiag.vehicle.identify.prepare_drive`: integrated, band-passed, decimated;
    suspension travel and rate per corner) and the three body equations written linear in
-   the 18 parameters (:mod:`fielddiag.vehicle.regression`), the added mass fixing the scale,
-   the sensor-noise bias compensated.
+   the 18 parameters (:mod:`fielddiag.vehicle.regression`), the added mass fixing the scale.
+   The identification's noise model (step 3 of :mod:`fielddiag.vehicle.identify`): the
+   drives weighted in frequency by one over the noise's share of the equation errors
+   (:func:`~fielddiag.vehicle.identify.weighted_drives`); the sensor-noise bias
+   compensated, the body sensors' noise from their redundancy, the car signals' above
+   fs/4, the hub sensors' (which holds what a gentle anti-alias filter folds into the
+   band) estimated band by band from the equation errors of the model being fitted, with
+   a covariance common to the left and right hub
+   (:func:`~fielddiag.vehicle.regression.compensated_least_squares`), for the linear
+   model and every candidate alike (a model that leaves a force out shows it as hub
+   noise; the model with it does not).
 2. A candidate effect of the library at a corner (or on both corners of an axle with one
    set of parameters) adds its force, evaluated on that corner's measured travel and rate,
    to the three equations with the corner's lever arms ``[1, x, y]``. Its force is linear in
@@ -18,16 +27,32 @@ Method (equation error, as the identification):
    stiffness, compression/rebound damping...) once its shape parameters (bump-stop gap,
    friction smoothing velocity) are fixed; those are searched on a short grid, chosen on
    the fitted part. An effect that replaces the linear damper or spring (asymmetric
-   damping) takes that corner's column out.
+   damping) takes that corner's column out. The force is evaluated at
+   :data:`FORCE_RATE_HZ` or more on the interpolated motion, its harmonics above the
+   recording's Nyquist frequency dropped, then weighted and filtered like the drive.
+   Its columns are taken as noise-free: the noise of the measured travel and rate passes
+   through the force into them, but measured on a simulated 200 Hz drive (a noise-free,
+   alias-free reading of the same motion as reference; 500 Hz in brackets) it is 1e-4 of
+   the column's energy for the damping effects (asymmetric, quadratic; 1e-5), 5e-4 to
+   1.4e-3 for friction (4e-5 to 8e-5), 2.4e-2 for the cubic spring (3e-3) and 5e-2 for a
+   bump stop 2 cm out (7e-3: the travel's low-frequency noise blurs the knee), against
+   1e-4 (1e-5) for the linear travel column the compensation is for. Left
+   uncompensated, such noise pulls the effect's own parameter towards zero by about that
+   share (errors in variables): below 0.2 % for friction and the dampers, up to a few %
+   for a bump stop's stiffness at 200 Hz.
 3. Every model is fitted by weighted least squares on the first 70 % of each drive and
    predicts the body accelerations of the last 30 % (the four body sensors, from the
-   measured suspension motion); the selection rule of the single-corner diagnosis
-   (:func:`fielddiag.diagnose.selection.select_model`: a significant paired-block
-   improvement worth its parameters, parameters physical) picks the simplest model, then
-   greedily a further effect at another corner on top of it, up to ``max_effects``.
+   measured suspension motion, weighted in frequency like the fit); the selection rule
+   of the single-corner diagnosis (:func:`fielddiag.diagnose.selection.select_model`: a
+   significant paired-block improvement worth its parameters, parameters physical)
+   picks the simplest model, then greedily a further effect at another corner on top of
+   it, up to ``max_effects``. The many candidates are screened first (no covariance, half
+   the hub-noise rounds, the normal matrix's covariance), the most promising refitted
+   with the full estimate.
 4. The chosen model is fitted again on all the data for the reported parameters and their
-   standard deviations (block-sandwich covariance). Where in time: the windows where the
-   chosen model lowers the residual most.
+   standard deviations (delete-a-block jackknife that repeats the whole estimate, the hub
+   noise included). Where in time: the windows where the chosen model lowers the
+   residual most.
 5. Left/right mismatch: per axle, the two corners' damping and stiffness of the chosen
    model, their ratio with its delta-method standard deviation; a corner is reported when
    the ratio departs from 1 by more than ``mismatch_tolerance`` (manufacturing spread)
@@ -37,39 +62,46 @@ Method (equation error, as the identification):
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
+from scipy import fft as sp_fft
 from scipy import signal, stats
 
 from fielddiag.blas import single_threaded_blas
 from fielddiag.channels import CORNERS
 from fielddiag.diagnose.selection import CandidateFit, compare, confidence, select_model
 from fielddiag.effects import EFFECTS, ForceModel, get_effect
-from fielddiag.errors import FieldDiagError, InvalidValueError
+from fielddiag.errors import FieldDiagError, InsufficientDataError, InvalidValueError
 from fielddiag.sim._common import G_MPS2
 from fielddiag.vehicle.identify import (
     VehicleIdentifyConfig,
     _derived,
     analysis_samples,
+    band_edges_hz,
     body_noise_std_mps2,
     car_accel_noise_std_mps2,
-    filter_response,
+    drive_noise,
     integrate_twice,
+    noise_weighting,
     prepare_drive,
+    weighted_drives,
 )
 from fielddiag.vehicle.recording import VehicleRecording
 from fielddiag.vehicle.regression import (
     N_PARAMS,
     PARAM_NAMES,
+    DriveNoise,
     DriveRegressors,
+    WlsResult,
+    band_split_signals,
+    compensated_least_squares,
     equation_rows,
     mass_matrix,
-    noise_normal_equations,
-    weighted_least_squares,
 )
 
 __all__ = ["DEFAULT_EFFECTS", "VehicleDiagnoseConfig", "VehicleDiagnosis", "diagnose_vehicle",
@@ -109,6 +141,12 @@ class VehicleDiagnoseConfig:
         One-sided z the log ratio must exceed the tolerance by (1.645: 95 %).
     window_s : float
         Length of the time windows reported as where a finding acts [s].
+    sag_passes : int
+        Most searches with the static sag (the travel offset of the drive with the mass
+        added, which the travel-dependent effects see) from the model the previous search
+        chose.
+    sag_tolerance_m : float
+        Change of the static sag below which no further search is made [m].
     """
 
     identify: VehicleIdentifyConfig = VehicleIdentifyConfig(refine=False)
@@ -120,6 +158,8 @@ class VehicleDiagnoseConfig:
     mismatch_tolerance: float = 0.20
     mismatch_z: float = 1.645
     window_s: float = 5.0
+    sag_passes: int = 3
+    sag_tolerance_m: float = 0.001
 
 
 # --------------------------------------------------------------------------- candidates
@@ -155,16 +195,24 @@ class _Term:
                 cols.append(_K0 + i)
         return cols
 
-    def columns(self, d: DriveRegressors) -> np.ndarray:
-        """(3, n, p) columns of the body equations (the effect's force moved to the left).
+    def corner_columns(self, d: DriveRegressors) -> np.ndarray:
+        """(corners, n, p) the effect's force per unit of each linear parameter at each of
+        its corners (the force moved to the left of the body equations).
 
         The force is evaluated on the corner's travel and rate before the band-pass (only
-        the drift removed) and then filtered and decimated exactly like the other terms:
-        the equation holds between band-passed quantities, and the band-pass of a
-        nonlinear force is not the force of the band-passed motion (friction came out
-        ~40 % low that way).
+        the drift removed; interpolated to at least :data:`FORCE_RATE_HZ`, its harmonics
+        above the recording's Nyquist frequency dropped) and then weighted in frequency,
+        filtered and decimated exactly like the other terms of the drive: the equation
+        holds between band-passed quantities, and the band-pass of a nonlinear force is not
+        the force of the band-passed motion (friction came out ~40 % low that way).
         """
-        key = (self, id(d))
+        return np.stack([_Term(self.effect, (c,), self.shape)._one_corner(d)
+                         for c in self.corners])
+
+    def _one_corner(self, d: DriveRegressors) -> np.ndarray:
+        """(n, p) :meth:`corner_columns` of a one-corner term (cached: the axle terms
+        share them)."""
+        key = (self, id(d), "corner")
         hit = _COLUMNS.get(key)
         if hit is not None and hit[0] is d:
             return hit[1]
@@ -172,39 +220,77 @@ class _Term:
         if self.effect not in _MODELS:
             _MODELS[self.effect] = ForceModel([cls()])
         model = _MODELS[self.effect]
-        lin = self.linear_params()
         values = {p.name: (p.typical if p.scales_with_force else
                            (p.default if p.default is not None else p.typical))
                   for p in cls.params}
         values.update(dict(self.shape))
-        vec = model.vector(values)
-        idx = [model.index(p) for p in lin]
-        raw = _RAW[id(d)][1]
-        out = np.zeros((3, d.n, len(lin)))
-        for c in self.corners:
-            i = CORNERS.index(c)
-            _, _, dp = model.force(raw.r[i], raw.rd[i], 0.0, vec)
-            cols = raw.filter(-dp[:, idx].T)  # (p, n)
-            lever = np.array([1.0, d.corner_x[i], d.corner_y[i]])
-            for e in range(3):
-                out[e] += lever[e] * cols.T
+        idx = [model.index(p) for p in self.linear_params()]
+        _, raw, weight = _RAW[id(d)]
+        i = CORNERS.index(self.corners[0])
+        _, _, dp = model.force(raw.r[i], raw.rd[i], 0.0, model.vector(values))
+        out = raw.filter(-dp[:, idx].T, weight).T
+        _COLUMNS[key] = (d, out)
+        return out
+
+    def levers(self, d: DriveRegressors) -> np.ndarray:
+        """(corners, 3) each corner's lever arms ``[1, x, y]`` in the three equations."""
+        return np.array([[1.0, d.corner_x[CORNERS.index(c)], d.corner_y[CORNERS.index(c)]]
+                         for c in self.corners])
+
+    def columns(self, d: DriveRegressors) -> np.ndarray:
+        """(3, n, p) columns of the body equations: :meth:`corner_columns` times the
+        corners' lever arms, summed."""
+        key = (self, id(d))
+        hit = _COLUMNS.get(key)
+        if hit is not None and hit[0] is d:
+            return hit[1]
+        out = np.einsum("ce,cnp->enp", self.levers(d), self.corner_columns(d))
         _COLUMNS[key] = (d, out)
         return out
 
 
+#: Lowest rate [Hz] the effects' forces are evaluated at (the motion interpolated): a force
+#: with sharp corners (friction's sign change, a bump stop's knee) has harmonics far above
+#: the band, which samples of it at the recording rate fold into the band while the
+#: sensors' anti-alias filter keeps most of them out of the body accelerations. Measured
+#: on a 200 Hz pair without sensor noise or hub aliasing: 80 N of friction came out 86.3 N
+#: evaluated at 200 Hz, 79.2 N at 600 Hz and at 1000 Hz (79.4 N at 500 Hz on the same pair
+#: recorded at 500 Hz).
+FORCE_RATE_HZ = 500.0
+
+
 @dataclass
 class _RawMotion:
-    """A drive's suspension travel and rate at the recording rate (drift removed only),
-    and the band-pass, trim and decimation of :func:`prepare_drive` to apply to a force."""
+    """A drive's suspension travel and rate (drift removed only) at ``upsample`` times the
+    recording rate (interpolated), and the band-pass, trim and decimation of
+    :func:`prepare_drive` to apply to a force evaluated on them."""
 
     r: np.ndarray
     rd: np.ndarray
     sos: np.ndarray
     passes: int
     keep: slice
+    rate_hz: float  # the recording's
+    n: int  # samples of the recording
+    upsample: int = 1
+    gains: dict[int, tuple[Callable, np.ndarray]] = field(default_factory=dict)  # weight(f)
 
-    def filter(self, x: np.ndarray) -> np.ndarray:
-        """Band-pass (zero phase, as often as the identification), trim, decimate."""
+    def filter(self, x: np.ndarray, weight: Callable[[np.ndarray], np.ndarray] | None = None
+               ) -> np.ndarray:
+        """Back to the recording rate through an ideal low-pass at its Nyquist frequency
+        (if evaluated above it), the frequency weighting (as :func:`prepare_drive` applies
+        it, over the whole drive), band-pass (zero phase, as often as the identification),
+        trim, decimate."""
+        n = self.n
+        if weight is not None or self.upsample > 1:
+            spec = sp_fft.rfft(x, axis=-1)[..., : n // 2 + 1] / self.upsample
+            if weight is not None:
+                gain = self.gains.get(id(weight))
+                if gain is None or gain[0] is not weight:
+                    gain = (weight, weight(sp_fft.rfftfreq(n, 1.0 / self.rate_hz)))
+                    self.gains[id(weight)] = gain
+                spec = spec * gain[1]
+            x = sp_fft.irfft(spec, n, axis=-1)
         for _ in range(self.passes):
             x = signal.sosfiltfilt(self.sos, x, axis=-1)
         return x[..., self.keep]
@@ -225,6 +311,22 @@ def _static_sag_m(theta: np.ndarray, d: DriveRegressors) -> np.ndarray:
     return lever.T @ np.linalg.solve(stiff, load)
 
 
+#: Largest static sag [m] under the added mass taken from a linear fit; beyond it (or with
+#: a corner stiffness <= 0) the fit is not a car's: a strongly nonlinear car (a damper
+#: with rebound ~3 x its compression) can drive the linear model towards zero.
+MAX_SAG_M = 0.15
+
+
+def _plausible_sag_m(theta: np.ndarray, d: DriveRegressors) -> np.ndarray:
+    """:func:`_static_sag_m`, or zeros (each drive's travel about its own rest, as before
+    the sag was applied) when the linear model behind it is not plausible."""
+    k = np.asarray(theta, float)[_K0:_K0 + 4]
+    if not np.all(np.isfinite(k) & (k > 0)):
+        return np.zeros(4)
+    sag = _static_sag_m(theta, d)
+    return sag if np.all(np.abs(sag) <= MAX_SAG_M) else np.zeros(4)
+
+
 def _raw_motion(rec: VehicleRecording, cfg: VehicleIdentifyConfig) -> _RawMotion:
     fs = float(rec.sample_rate_hz)
     lo, hi = cfg.band_hz
@@ -234,16 +336,44 @@ def _raw_motion(rec: VehicleRecording, cfg: VehicleIdentifyConfig) -> _RawMotion
     proj = g.corner_matrix() @ np.linalg.pinv(g.sensor_matrix())
     r = proj @ x[4:] - x[:4]
     rd = proj @ v[4:] - v[:4]
+    n = acc.shape[1]
+    up = max(1, math.ceil(FORCE_RATE_HZ / fs - 1e-9))
+    if up > 1:  # band-limited interpolation (the motion is periodic: integrated by FFT)
+        r, rd = signal.resample(r, up * n, axis=-1), signal.resample(rd, up * n, axis=-1)
     sos = signal.butter(cfg.filter_order, [lo, hi], "bandpass", fs=fs, output="sos")
-    return _RawMotion(r, rd, sos, cfg.passes, analysis_samples(acc.shape[1], fs, cfg))
+    return _RawMotion(r, rd, sos, cfg.passes, analysis_samples(n, fs, cfg), fs, n, up)
 
 
 #: One compiled ForceModel per effect, and the columns of the terms of the running
-#: diagnosis (cleared at its start and end).
+#: diagnosis (cleared at its start and end); per prepared drive its raw motion and the
+#: frequency weighting it was prepared with.
 _MODELS: dict[str, ForceModel] = {}
-_COLUMNS: dict[tuple[_Term, int], tuple[DriveRegressors, np.ndarray]] = {}
-_RAW: dict[int, tuple[DriveRegressors, _RawMotion]] = {}
+_COLUMNS: dict[tuple, tuple[DriveRegressors, np.ndarray]] = {}
+_RAW: dict[int, tuple[DriveRegressors, _RawMotion,
+                      Callable[[np.ndarray], np.ndarray] | None]] = {}
 _ROWS: dict[int, tuple[DriveRegressors, np.ndarray, np.ndarray]] = {}
+
+
+@functools.cache
+def _depends_on_travel(effect: str) -> bool:
+    """Whether an effect's force changes with the suspension's travel (at typical values
+    and a few travels and rates)."""
+    cls = get_effect(effect)
+    if effect not in _MODELS:
+        _MODELS[effect] = ForceModel([cls()])
+    model = _MODELS[effect]
+    values = {p.name: (p.typical if p.scales_with_force or p.default is None else p.default)
+              for p in cls.params}
+    r = np.repeat([-0.08, -0.03, 0.0, 0.03, 0.08], 3)
+    rd = np.tile([-0.2, 0.05, 0.3], 5)
+    f = model.force(r, rd, 0.0, model.vector(values))[0].reshape(5, 3)
+    return bool(np.any(np.abs(f - f[2]) > 1e-9 * (1.0 + np.abs(f[2]))))
+
+
+def _forget_travel_columns() -> None:
+    """Drop the cached columns of the effects that depend on the travel (it moved)."""
+    for key in [k for k in _COLUMNS if _depends_on_travel(k[0].effect)]:
+        del _COLUMNS[key]
 
 
 def _equation_rows(d: DriveRegressors) -> tuple[np.ndarray, np.ndarray]:
@@ -268,48 +398,168 @@ def _shape_grid(effect: str, r: np.ndarray) -> list[tuple[tuple[str, float], ...
 
 
 # --------------------------------------------------------------------------- fitting
+def _augment(lin: np.ndarray, cross: np.ndarray, extra: np.ndarray) -> np.ndarray:
+    """Gram matrices of ``[A, E, b]`` from those of ``[A, b]`` (``lin``, (..., P0 + 1,
+    P0 + 1)), ``E^T [A, b]`` (``cross``, (..., q, P0 + 1)) and ``E^T E`` (``extra``):
+    the effects' columns ``E`` between the linear model's and the right-hand side, as
+    :func:`compensated_least_squares` takes them (``b`` last)."""
+    p0, q = N_PARAMS, extra.shape[-1]
+    p = p0 + q
+    out = np.zeros(lin.shape[:-2] + (p + 1, p + 1))
+    idx = np.append(np.arange(p0), p)
+    out[..., idx[:, None], idx] = lin
+    out[..., p0:p, idx] = cross
+    out[..., idx, p0:p] = np.swapaxes(cross, -1, -2)
+    out[..., p0:p, p0:p] = extra
+    return out
+
+
+def _block_products(x: np.ndarray, y: np.ndarray, block: int) -> np.ndarray:
+    """``x^T y`` over consecutive time blocks, the blocks of
+    :func:`~fielddiag.vehicle.regression.block_grams` (from the first sample, the last one
+    shorter): (..., n_blocks, p, q) from (..., n, p) and (..., n, q)."""
+    n = x.shape[-2]
+    bs = max(1, int(block))
+    full = n // bs
+    xb = x[..., : full * bs, :].reshape(x.shape[:-2] + (full, bs, x.shape[-1]))
+    yb = y[..., : full * bs, :].reshape(y.shape[:-2] + (full, bs, y.shape[-1]))
+    out = np.matmul(xb.swapaxes(-1, -2), yb)
+    if n > full * bs:  # the last, shorter block
+        last = np.matmul(x[..., full * bs:, :].swapaxes(-1, -2), y[..., full * bs:, :])
+        out = np.concatenate([out, last[..., None, :, :]], axis=-3)
+    return out
+
+
+def _pieces(terms: Sequence[_Term], d: DriveRegressors) -> tuple[np.ndarray, np.ndarray]:
+    """The effects' columns of ``terms`` as per-corner force columns ``U`` (n, m) and
+    lever arms ``L`` (3, m, q): the equations' extra columns are ``E[e] = U L[e]``."""
+    cols, rows = [], []
+    q0 = 0
+    q = sum(len(t.linear_params()) for t in terms)
+    for t in terms:
+        cc, lev = t.corner_columns(d), t.levers(d)
+        for j in range(cc.shape[0]):
+            for p in range(cc.shape[2]):
+                cols.append(cc[j, :, p])
+                row = np.zeros((3, q))
+                row[:, q0 + p] = lev[j]
+                rows.append(row)
+        q0 += cc.shape[2]
+    return np.stack(cols, axis=1), np.stack(rows, axis=1)
+
+
 @dataclass
 class _Data:
-    """Both drives' rows and the extra columns of one model, split fit / held out."""
+    """Both drives as fitted and scored (weighted in frequency), their noise, the held-out
+    split, and the Gram matrices of the linear model's rows (cached per part and block)."""
 
     drives: list[DriveRegressors]
-    noise: dict[int, tuple[np.ndarray, np.ndarray]] | None  # group -> E[A^T A], E[A^T b]
+    noise: list[DriveNoise] | None  # per drive, for all its samples
     split: list[int]  # first held-out sample of each drive
+    edges_hz: np.ndarray | None = None  # hub-noise bands; None: the hub noise not estimated
+    hub_iterations: int = 0
+    bias_correction: bool = False
+    _cache: dict[Any, Any] = field(default_factory=dict)
 
-    def noise_for(self, parts: Sequence[slice], n_cols: int
-                  ) -> dict[int, tuple[np.ndarray, np.ndarray]] | None:
-        """The noise's expected normal equations for the samples of ``parts`` (a share of
-        the drive's sums), padded with zeros for the effects' columns (their noise is
-        left out: the effects are evaluated on the measured motion)."""
+    def _signals(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """The 13 signals the rows are made of, ``S`` (n, 13: heave/pitch/roll
+        acceleration, travel and rate per corner, the car's accelerations), and the map
+        ``M`` (3, 13, P0 + 1) with ``[A, b][e] = S M[e]`` (:func:`equation_rows` of unit
+        signals)."""
+        key = ("signals", k)
+        if key not in self._cache:
+            d = self.drives[k]
+            unit = np.eye(13)
+            basis = replace(d, qdd=unit[:3], r=unit[3:7], rd=unit[7:11], a_long=unit[11],
+                            a_lat=unit[12])
+            a, b = equation_rows(basis)
+            sig = np.vstack([d.qdd, d.r, d.rd, d.a_long, d.a_lat]).T
+            self._cache[key] = (np.ascontiguousarray(sig),
+                                np.concatenate([a, b[..., None]], axis=2))
+        return self._cache[key]
+
+    def _band_signals(self, k: int, part: slice) -> np.ndarray:
+        """:meth:`_signals` of each hub-noise band, the samples of ``part`` (bands, n, 13)."""
+        key = ("band_signals", k, part.start, part.stop)
+        if key not in self._cache:
+            d = self.drives[k]
+            sb = band_split_signals(self._signals(k)[0].T, d.rate_hz, self.edges_hz)
+            self._cache[key] = np.ascontiguousarray(sb.swapaxes(1, 2)[:, part])
+        return self._cache[key]
+
+    def _linear(self, k: int, part: slice, block: int
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """Block Gram matrices of ``[A, b]`` over ``part`` (3, n_blocks, P0 + 1, P0 + 1),
+        samples per block, and the same per band (3, n_blocks, n_bands, P0 + 1, P0 + 1):
+        those of :func:`~fielddiag.vehicle.regression.block_grams` (of
+        :func:`~fielddiag.vehicle.regression.band_split`), from :meth:`_signals`."""
+        key = ("grams", k, part.start, part.stop, block)
+        if key not in self._cache:
+            sig, m = self._signals(k)
+            sp = sig[part]
+            g = np.einsum("esp,bst,etq->ebpq", m, _block_products(sp, sp, block), m)
+            n = np.diff(np.append(np.arange(0, sp.shape[0], max(1, int(block))),
+                                  sp.shape[0]))
+            bg = None
+            if self.edges_hz is not None:
+                ss = _block_products(self._band_signals(k, part),
+                                     self._band_signals(k, part), block)
+                bg = np.einsum("esp,bjst,etq->ebjpq", m, ss.swapaxes(0, 1), m)
+            self._cache[key] = (g, n, bg)
+        return self._cache[key]
+
+    def grams(self, terms: Sequence[_Term], parts: Sequence[slice], block: int
+              ) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray] | None]:
+        """Per drive, the block Gram matrices of ``[A, E, b]`` over ``part`` (3, n_blocks,
+        P + 1, P + 1), the samples per block, and the same per hub-noise band (3, n_blocks,
+        n_bands, P + 1, P + 1; None when the hub noise is not estimated).
+
+        The effects' products are formed from their per-corner columns and the 13 signals
+        the rows are made of (:meth:`_signals`, :func:`_pieces`): the same sums, a
+        fraction of the memory traffic."""
+        grams, samples, bands = [], [], []
+        for k, (d, part) in enumerate(zip(self.drives, parts, strict=True)):
+            g, n, bg = self._linear(k, part, block)
+            if terms:
+                u, lev = _pieces(terms, d)
+                sig, m = self._signals(k)
+                up = u[part]
+                us = _block_products(up, sig[part], block)  # (blocks, m, 13)
+                uu = _block_products(up, up, block)
+                g = _augment(g, np.einsum("ekq,bks,esp->ebqp", lev, us, m),
+                             np.einsum("ekq,bkl,elr->ebqr", lev, uu, lev))
+                if bg is not None:
+                    ub = band_split_signals(u.T, d.rate_hz, self.edges_hz)
+                    ubp = np.ascontiguousarray(ub.swapaxes(1, 2)[:, part])  # (bands, n, m)
+                    us = _block_products(ubp, self._band_signals(k, part), block)
+                    uu = _block_products(ubp, ubp, block)  # (bands, blocks, m, m)
+                    bg = _augment(bg, np.einsum("ekq,jbks,esp->ebjqp", lev, us, m),
+                                  np.einsum("ekq,jbkl,elr->ebjqr", lev, uu, lev))
+            grams.append(g)
+            samples.append(n)
+            bands.append(bg)
+        return grams, samples, (bands if self.edges_hz is not None else None)
+
+    def noise_for(self, parts: Sequence[slice], n_extra: int,
+                  hub_s2: np.ndarray | None = None) -> list[DriveNoise] | None:
+        """The noise's expected share in the Gram matrices of the samples of ``parts`` (a
+        share of the drive's), with zeros for the effects' columns: they are taken as
+        noise-free (see :func:`diagnose_vehicle`); the hub noise starting from ``hub_s2``
+        (drives, components, bands) if given."""
         if self.noise is None:
             return None
-        out = {}
-        for g, (naa, nab) in self.noise.items():
-            d = self.drives[g // 3]
-            frac = len(range(*parts[g // 3].indices(d.n))) / d.n
-            aa = np.zeros((n_cols, n_cols))
-            ab = np.zeros(n_cols)
-            aa[:N_PARAMS, :N_PARAMS] = frac * naa
-            ab[:N_PARAMS] = frac * nab
-            out[g] = (aa, ab)
+        out = []
+        for k, (d, part, nz) in enumerate(zip(self.drives, parts, self.noise, strict=True)):
+            frac = len(range(*part.indices(d.n))) / d.n
+
+            def pad(m: np.ndarray, frac: float = frac) -> np.ndarray:
+                lead = m.shape[:-2]
+                return frac * _augment(m, np.zeros(lead + (n_extra, N_PARAMS + 1)),
+                                       np.zeros(lead + (n_extra, n_extra)))
+
+            s2 = nz.hub_s2 if hub_s2 is None else hub_s2[k]
+            out.append(DriveNoise(pad(nz.known), pad(nz.hub_unit), np.array(s2, float)))
         return out
-
-
-def _rows(drives: Sequence[DriveRegressors], terms: Sequence[_Term],
-          parts: Sequence[slice]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    rows, rhs, group, tidx = [], [], [], []
-    for k, (d, part) in enumerate(zip(drives, parts, strict=True)):
-        a, b = _equation_rows(d)
-        extra = [t.columns(d) for t in terms]
-        if extra:
-            a = np.concatenate([a, *extra], axis=2)
-        n = np.arange(d.n)[part]
-        for e in range(3):
-            rows.append(a[e, part])
-            rhs.append(b[e, part])
-            group.append(np.full(n.size, 3 * k + e))
-            tidx.append(n + 10**9 * k)
-    return np.vstack(rows), np.concatenate(rhs), np.concatenate(group), np.concatenate(tidx)
 
 
 @dataclass
@@ -320,75 +570,62 @@ class _Fitted:
     fitted: np.ndarray
     names: list[str]
     group_sigma: np.ndarray | None = None
+    hub_noise_s2: np.ndarray | None = None  # (drives, components, bands)
+    hub_fallback: bool = False  # the hub noise taken as the body sensors' (see _fit)
 
 
 def _fit(data: _Data, terms: Sequence[_Term], parts: Sequence[slice], fitted_base: np.ndarray,
-         block: int) -> _Fitted:
-    a, b, g, t = _rows(data.drives, terms, parts)
-    noise = data.noise_for(parts, a.shape[1])
-    fitted = np.concatenate([fitted_base, np.ones(a.shape[1] - N_PARAMS, bool)])
+         block: int, screen: bool = False, hub_start: np.ndarray | None = None,
+         hub_iterations: int | None = None) -> _Fitted | None:
+    """Noise-compensated weighted least squares of the linear model plus ``terms`` on
+    ``parts``, the hub noise estimated from this model's equation errors
+    (:func:`~fielddiag.vehicle.regression.compensated_least_squares`); jackknife
+    covariance over ``block``-sample blocks, or (``screen``) the normal matrix's."""
+    grams, samples, bands = data.grams(terms, parts, block)
+    q = grams[0].shape[-1] - 1 - N_PARAMS
+    fitted = np.concatenate([fitted_base, np.ones(q, bool)])
     for term in terms:
         fitted[term.replaced_columns()] = False
-    w = weighted_least_squares(a, b, g, t, fitted, block, noise)
-    names = list(PARAM_NAMES) + [f"{term.label}.{p}" for term in terms
-                                 for p in term.linear_params()]
-    return _Fitted(tuple(terms), w.theta, w.cov, w.fitted, names, w.group_sigma)
+    iters = data.hub_iterations if hub_iterations is None else hub_iterations
+
+    def solve(rounds: int) -> WlsResult | None:
+        try:
+            return compensated_least_squares(
+                grams, samples, fitted, data.noise_for(parts, q, hub_start), bands, rounds,
+                jackknife=not screen, bias_correction=data.bias_correction and not screen,
+                normal_covariance=screen)
+        except np.linalg.LinAlgError:
+            return None
+
+    w = solve(iters if bands is not None else 0)
+    fallback = False
+    if bands is not None and iters > 0 and not _is_car(w):
+        # a model that leaves a large force out shows it as hub noise; compensated, that
+        # "noise" can take the signal with it (mass or a corner's stiffness to <= 0): such
+        # a model is fitted with the hubs as noisy as the body sensors instead
+        w, fallback = solve(0), True
+    if w is None or not np.all(np.isfinite(w.theta[w.fitted])):
+        if not terms:
+            raise InsufficientDataError(
+                "the linear full-vehicle model cannot be fitted to these drives (singular "
+                "equations): drive longer, over a rough road")
+        return None  # a candidate whose columns leave the equations singular: not a model
+    return _Fitted(tuple(terms), w.theta, w.cov, w.fitted, _names(terms), w.group_sigma,
+                   w.hub_noise_s2, fallback)
+
+
+def _is_car(w: WlsResult | None) -> bool:
+    """A fit with finite parameters, a positive mass and positive corner stiffness and
+    damping (where fitted)."""
+    if w is None or not np.all(np.isfinite(w.theta[w.fitted])):
+        return False
+    corners = np.arange(_K0, _C0 + 4)
+    th = w.theta
+    return bool(th[0] > 0 and np.all(th[corners][w.fitted[corners]] > 0))
 
 
 def _names(terms: Sequence[_Term]) -> list[str]:
     return list(PARAM_NAMES) + [f"{t.label}.{p}" for t in terms for p in t.linear_params()]
-
-
-class _Screen:
-    """Fast fixed-weight least squares for screening many candidates: the linear columns'
-    weighted normal equations (noise-compensated, the weights of the linear fit) are summed
-    once per equation group; a candidate adds only its own columns' products."""
-
-    def __init__(self, data: _Data, parts: Sequence[slice], fitted_base: np.ndarray,
-                 sigma: np.ndarray) -> None:
-        p = N_PARAMS
-        self.data, self.fitted_base = data, fitted_base
-        self.g, self.h = np.zeros((p, p)), np.zeros(p)
-        self.items = []
-        noise = data.noise_for(parts, p) or {}
-        for k, (d, part) in enumerate(zip(data.drives, parts, strict=True)):
-            a, b = _equation_rows(d)
-            for e in range(3):
-                w2 = 1.0 / sigma[3 * k + e] ** 2
-                ae, be = a[e, part], b[e, part]
-                self.g += w2 * ae.T @ ae
-                self.h += w2 * ae.T @ be
-                if 3 * k + e in noise:
-                    naa, nab = noise[3 * k + e]
-                    self.g -= w2 * naa
-                    self.h -= w2 * nab
-                self.items.append((d, e, part, w2, ae, be))
-
-    def fit(self, terms: Sequence[_Term]) -> _Fitted:
-        p = N_PARAMS
-        q = sum(len(t.linear_params()) for t in terms)
-        g = np.zeros((p + q, p + q))
-        h = np.zeros(p + q)
-        g[:p, :p], h[:p] = self.g, self.h
-        for d, e, part, w2, ae, be in self.items:
-            ex = np.concatenate([t.columns(d)[e, part] for t in terms], axis=1)
-            g[:p, p:] += w2 * ae.T @ ex
-            g[p:, p:] += w2 * ex.T @ ex
-            h[p:] += w2 * ex.T @ be
-        g[p:, :p] = g[:p, p:].T
-        fitted = np.concatenate([self.fitted_base, np.ones(q, bool)])
-        for t in terms:
-            fitted[t.replaced_columns()] = False
-        cols = np.flatnonzero(fitted)
-        gs = g[np.ix_(cols, cols)]
-        sc = np.sqrt(np.abs(np.diag(gs)))
-        sc[sc == 0] = 1.0
-        inv = np.linalg.pinv(gs / np.outer(sc, sc))
-        theta = np.full(p + q, np.nan)
-        theta[cols] = inv @ (h[cols] / sc) / sc
-        cov = np.zeros((p + q, p + q))
-        cov[np.ix_(cols, cols)] = inv / np.outer(sc, sc)
-        return _Fitted(tuple(terms), theta, cov, fitted, _names(terms))
 
 
 def _predict(f: _Fitted, d: DriveRegressors) -> np.ndarray:
@@ -472,6 +709,7 @@ class VehicleDiagnosis:
     cross_validation: list[dict[str, Any]] = field(default_factory=list)
     fit: list[dict[str, Any]] = field(default_factory=list)
     vehicle: dict[str, Any] = field(default_factory=dict)
+    noise: dict[str, Any] = field(default_factory=dict)
 
     @property
     def verdict(self) -> str:
@@ -503,14 +741,13 @@ class VehicleDiagnosis:
             "linear_model_adequate": ch is base,
             "method": self.method,
             "vehicle": self.vehicle,
+            "noise": self.noise,
         }
 
 
 def _model_dict(f: _Fitted) -> dict[str, Any]:
     """Body and corners of a fitted model, each ``{"value", "std"}`` (the identification's
     keys)."""
-    from fielddiag.vehicle.regression import WlsResult
-
     p = N_PARAMS
     w = WlsResult(f.theta[:p], f.cov[:p, :p], f.fitted[:p], np.ones(1), 1)
     est = _derived(w)
@@ -705,41 +942,78 @@ def _diagnose(before: VehicleRecording, after: VehicleRecording, added_mass_kg: 
               config: VehicleDiagnoseConfig, say: Callable[[str], None]) -> VehicleDiagnosis:
     icfg = config.identify
     say("preparing the drives (integration, band-pass)")
-    drives = []
-    noise: dict[int, tuple[np.ndarray, np.ndarray]] | None = (
-        {} if icfg.noise_compensation else None)
-    for k, (rec, dm, pos) in enumerate(((before, 0.0, (0.0, 0.0)),
-                                        (after, added_mass_kg, at))):
+    recs = (before, after)
+    drives = []  # prepared flat in frequency: for the traces shown
+    raws = []
+    for rec, dm, pos in ((before, 0.0, (0.0, 0.0)), (after, added_mass_kg, at)):
         d = prepare_drive(rec, icfg)
         d.added_mass_kg, d.added_mass_at_m = dm, pos
         d.start_s = _start_s(rec, icfg)
-        _RAW[id(d)] = (d, _raw_motion(rec, icfg))
+        raws.append(_raw_motion(rec, icfg))
+        _RAW[id(d)] = (d, raws[-1], None)
         drives.append(d)
-        if noise is not None:  # as the identification (the hubs taken as noisy as the body)
-            noise.update(noise_normal_equations(d, [body_noise_std_mps2(rec)] * 8,
-                                                filter_response(rec, icfg), 3 * k,
-                                                car_accel_noise_std_mps2(rec)))
-    data = _Data(drives, noise, [int(round((1 - config.holdout_fraction) * d.n))
-                                 for d in drives])
-    fit_parts = [slice(0, s) for s in data.split]
-    hold_parts = [slice(s, None) for s in data.split]
-    all_parts = [slice(None)] * len(drives)
     base_fitted = np.ones(N_PARAMS, bool)
     for col, sig in ((16, "a_long"), (17, "a_lat")):
         rms = max(float(np.sqrt(np.mean(getattr(d, sig) ** 2))) for d in drives)
         base_fitted[col] = rms > 0.02
     block = max(1, int(round(icfg.block_s * drives[0].rate_hz)))
+    # the identification's noise model: the frequency weighting, the body sensors' and car
+    # signals' noise known, the hubs' estimated from each model's equation errors
+    fit_drives, weights = list(drives), [None] * len(drives)
+    noise, edges, body_sigma = None, None, None
+    if icfg.noise_compensation:
+        body_sigma = [body_noise_std_mps2(rec) for rec in recs]
+        car_sigma = [car_accel_noise_std_mps2(rec) for rec in recs]
+        if icfg.noise_weighting:
+            say("weighting the band by the noise")
+            weights, fit_drives = weighted_drives(recs, drives, base_fitted, block, icfg,
+                                                  body_sigma, car_sigma)
+        spectrum = icfg.hub_noise == "spectrum"
+        all_edges = band_edges_hz(icfg.band_hz, icfg.hub_noise_bands)
+        noise = [drive_noise(rec, d, icfg, wt, all_edges, bs, cs,
+                             icfg.hub_noise_correlation if spectrum else ())
+                 for rec, d, wt, bs, cs in zip(recs, fit_drives, weights, body_sigma,
+                                               car_sigma, strict=True)]
+        edges = all_edges if spectrum else None
+    for d, d0, raw, wt in zip(fit_drives, drives, raws, weights, strict=True):
+        d.start_s = d0.start_s
+        _RAW[id(d)] = (d, raw, wt)
+    data = _Data(fit_drives, noise, [int(round((1 - config.holdout_fraction) * d.n))
+                                     for d in fit_drives], edges, icfg.hub_noise_iterations,
+                 icfg.jackknife_bias)
+    fit_parts = [slice(0, s) for s in data.split]
+    hold_parts = [slice(s, None) for s in data.split]
+    all_parts = [slice(None)] * len(drives)
 
-    def fit(terms: Sequence[_Term], parts=fit_parts) -> _Fitted:
-        return _fit(data, terms, parts, base_fitted, block)
+    # fits of models whose effects do not depend on the travel: the same in every search
+    kept: dict[tuple, _Fitted | None] = {}
 
-    def best_shape(screen: _Screen, prefix: tuple[_Term, ...], effect: str,
-                   corners: tuple[str, ...]) -> CandidateFit:
-        r = np.concatenate([_RAW[id(d)][1].r[CORNERS.index(c)] for d in drives
-                            for c in corners])
+    def remembered(key: tuple, terms: Sequence[_Term], make: Callable[[], _Fitted | None]
+                   ) -> _Fitted | None:
+        if any(_depends_on_travel(t.effect) for t in terms):
+            return make()
+        if key not in kept:
+            kept[key] = make()
+        return kept[key]
+
+    def fit(terms: Sequence[_Term], parts=fit_parts) -> _Fitted | None:
+        return remembered((tuple(terms), parts is fit_parts, False), terms,
+                          lambda: _fit(data, terms, parts, base_fitted, block))
+
+    def screen_fit(terms: Sequence[_Term]) -> _Fitted | None:
+        # the hub noise's fixed point in half the rounds (as the jackknife replicates)
+        return remembered((tuple(terms), True, True), terms, lambda: _fit(
+            data, terms, fit_parts, base_fitted, block, screen=True,
+            hub_iterations=max(1, icfg.hub_noise_iterations // 2)))
+
+    def best_shape(prefix: tuple[_Term, ...], effect: str, corners: tuple[str, ...]
+                   ) -> CandidateFit:
+        r = np.concatenate([raw.r[CORNERS.index(c)] for raw in raws for c in corners])
         best = None
         for shape in _shape_grid(effect, r):
-            f = screen.fit((*prefix, _Term(effect, corners, shape)))
+            f = screen_fit((*prefix, _Term(effect, corners, shape)))
+            if f is None:
+                continue
             cand = _candidate(f, data, fit_parts, hold_parts)
             if best is None or cand.nrmse_fit < best.nrmse_fit:
                 best = cand
@@ -748,51 +1022,79 @@ def _diagnose(before: VehicleRecording, after: VehicleRecording, added_mass_kg: 
     say("fitting the linear model")
     base_fit = fit(())
     base = _candidate(base_fit, data, fit_parts, hold_parts)
-    # effects act on the travel from the unloaded car's rest: the drive with the mass added
-    # rests lower by the static sag the linear model gives
-    for d in drives:
-        raw = _RAW[id(d)][1]
-        raw.r = raw.r + _static_sag_m(base_fit.theta, d)[:, None]
-    screen = _Screen(data, fit_parts, base_fitted, base_fit.group_sigma)
     places = [(c,) for c in CORNERS]
     if config.axle_candidates:
         places += list(AXLES.values())
-    say(f"trying {len(config.effects)} effects at {len(places)} places")
-    tried: list[CandidateFit] = []
-    chosen = base
-    prefix: tuple[_Term, ...] = ()
-    for _round in range(config.max_effects):
-        used = {c for t in prefix for c in t.corners}
-        screened = []
-        for e in config.effects:
-            for pl in places:
-                if used & set(pl):
-                    continue
-                screened.append(best_shape(screen, prefix, e, pl))
-        # the most promising few fitted exactly (reweighted, sandwich covariance)
-        promising = sorted((c for c in screened
-                            if compare(chosen, c).beats(c.n_params - chosen.n_params)),
-                           key=lambda c: c.mse_validation)[:config.exact_fits]
-        cands = [_candidate(fit(c.extra["fitted"].terms), data, fit_parts, hold_parts)
-                 for c in promising]
-        tried.extend(cands)
-        tried.extend(c for c in screened if c not in promising)
-        if chosen is base:
-            sel = select_model(base, cands)
-            nxt = sel.chosen if sel.chosen is not base else None
-        else:
-            ok = [c for c in cands if c.physical
-                  and compare(chosen, c).beats(c.n_params - chosen.n_params)
-                  and compare(base, c).beats(c.n_params - base.n_params)]
-            nxt = min(ok, key=lambda c: c.mse_validation) if ok else None
-        if nxt is None:
+    travel = [raw.r for raw in raws]
+
+    def search(sag_theta: np.ndarray) -> tuple[CandidateFit, tuple[_Term, ...],
+                                               list[CandidateFit]]:
+        """The greedy search with the travel shifted by the static sag ``sag_theta``'s
+        stiffness gives: effects act on the travel from the unloaded car's rest, and the
+        drive with the mass added rests lower."""
+        for d, raw, r in zip(drives, raws, travel, strict=True):
+            raw.r = r + _plausible_sag_m(sag_theta, d)[:, None]
+        _forget_travel_columns()
+        say(f"trying {len(config.effects)} effects at {len(places)} places")
+        tried: list[CandidateFit] = []
+        chosen = base
+        prefix: tuple[_Term, ...] = ()
+        for _round in range(config.max_effects):
+            used = {c for t in prefix for c in t.corners}
+            screened = []
+            for e in config.effects:
+                for pl in places:
+                    if used & set(pl):
+                        continue
+                    cand = best_shape(prefix, e, pl)
+                    if cand is not None:
+                        screened.append(cand)
+            # the most promising few fitted exactly (jackknife covariance)
+            promising = sorted((c for c in screened
+                                if compare(chosen, c).beats(c.n_params - chosen.n_params)),
+                               key=lambda c: c.mse_validation)[:config.exact_fits]
+            exact = [fit(c.extra["fitted"].terms) for c in promising]
+            cands = [_candidate(f, data, fit_parts, hold_parts) for f in exact
+                     if f is not None]
+            tried.extend(cands)
+            tried.extend(c for c in screened if c not in promising)
+            if chosen is base:
+                sel = select_model(base, cands)
+                nxt = sel.chosen if sel.chosen is not base else None
+            else:
+                ok = [c for c in cands if c.physical
+                      and compare(chosen, c).beats(c.n_params - chosen.n_params)
+                      and compare(base, c).beats(c.n_params - base.n_params)]
+                nxt = min(ok, key=lambda c: c.mse_validation) if ok else None
+            if nxt is None:
+                break
+            chosen = nxt
+            prefix = chosen.extra["fitted"].terms
+            say("chosen so far: " + ", ".join(chosen.effects))
+        return chosen, prefix, tried
+
+    # the sag from the linear model first; a car with a strong effect biases the linear
+    # model (or collapses it: no sag), so the search is repeated with the sag of the model
+    # it chose until the two agree, when that model has an effect that depends on the
+    # travel or there was no sag (else the sag moved only effects that lost anyway)
+    sag_theta = base_fit.theta
+    for _pass in range(config.sag_passes):
+        chosen, prefix, tried = search(sag_theta)
+        if not prefix:
             break
-        chosen = nxt
-        prefix = chosen.extra["fitted"].terms
-        say("chosen so far: " + ", ".join(chosen.effects))
+        theta = chosen.extra["fitted"].theta
+        had_sag = bool(np.any(_plausible_sag_m(sag_theta, drives[1])))
+        if had_sag and not any(_depends_on_travel(t.effect) for t in prefix):
+            break
+        shift = max(float(np.max(np.abs(_plausible_sag_m(theta, d)
+                                        - _plausible_sag_m(sag_theta, d)))) for d in drives)
+        if shift <= config.sag_tolerance_m:
+            break
+        say(f"the chosen model moves the static sag by {1000 * shift:.1f} mm: searching again")
+        sag_theta = theta
     say("refitting on all the data")
     base_all = fit((), all_parts)
-    chosen_all = fit(prefix, all_parts) if prefix else base_all
+    chosen_all = (fit(prefix, all_parts) or chosen.extra["fitted"]) if prefix else base_all
     names = [rec.name or rec.label or ("before", "after")[k]
              for k, rec in enumerate((before, after))]
     findings = []
@@ -800,22 +1102,28 @@ def _diagnose(before: VehicleRecording, after: VehicleRecording, added_mass_kg: 
     base_cmp = compare(base, chosen) if prefix else None
     for k, term in enumerate(prefix):
         upto = fit(prefix[:k + 1]) if k + 1 < len(prefix) else chosen.extra["fitted"]
-        _, nrmse_after = _residual(upto, drives, hold_parts)
+        _, nrmse_after = _residual(upto, fit_drives, hold_parts)
         single = fit((term,), all_parts)
-        where = _windows(base_all, single, drives, names, config.window_s)
+        where = ([] if single is None else
+                 _windows(base_all, single, fit_drives, names, config.window_s))
         findings.append(_effect_finding(term, chosen_all, base_cmp, base, chosen, nrmse_prev,
                                         nrmse_after, where))
         nrmse_prev = nrmse_after
     findings.extend(_mismatches(chosen_all, config.mismatch_tolerance, config.mismatch_z))
     cv = []
     for k, rec in enumerate(validate):
+        if rec.added_mass_kg and rec.added_mass_at_m is None:
+            raise InvalidValueError(f"{rec.name or 'a validate drive'} carries an added "
+                                    "mass but not where it sits; record added_mass_at_m")
         d = prepare_drive(rec, icfg)
-        _RAW[id(d)] = (d, _raw_motion(rec, icfg))
-        if rec.added_mass_kg:
-            if rec.added_mass_at_m is None:
-                raise InvalidValueError(f"{rec.name or 'a validate drive'} carries an added "
-                                        "mass but not where it sits; record added_mass_at_m")
-            d.added_mass_at_m = tuple(float(v) for v in rec.added_mass_at_m)
+        wt = None
+        if icfg.noise_compensation and icfg.noise_weighting:  # weighted as the fit drives
+            wt = noise_weighting(d, base_all.theta[:N_PARAMS], [body_noise_std_mps2(rec)] * 8,
+                                 car_accel_noise_std_mps2(rec), icfg.band_hz)
+            d = prepare_drive(rec, icfg, wt)
+        raw = _raw_motion(rec, icfg)
+        raw.r = raw.r + _plausible_sag_m(sag_theta, d)[:, None]
+        _RAW[id(d)] = (d, raw, wt)
         _, nb = _residual(base_all, [d], [slice(None)])
         _, nc = _residual(chosen_all, [d], [slice(None)])
         cv.append({"session": rec.name or rec.label or f"validate_{k + 1}",
@@ -826,8 +1134,14 @@ def _diagnose(before: VehicleRecording, after: VehicleRecording, added_mass_kg: 
         f"(band {lo:g}-{hi:g} Hz, {drives[0].rate_hz:g} Hz), the 3 body equations linear in "
         "18 parameters plus, per candidate, a library effect's force at one corner (or on "
         "both corners of an axle) with the corner's lever arms; weighted least squares "
-        f"(noise-bias compensated) on the first {100 * (1 - config.holdout_fraction):.0f} % "
-        "of each drive, body accelerations predicted on the last "
+        + ("with the identification's noise model (weighted in frequency by the noise's share "
+           "of the equation errors, sensor-noise bias compensated: body sensors' noise from "
+           "their redundancy, the hubs' band by band from each model's own equation errors; "
+           "the effects' columns taken as noise-free) "
+           if icfg.noise_compensation and icfg.noise_weighting and edges is not None else
+           "(noise-bias compensated) " if icfg.noise_compensation else "")
+        + f"on the first {100 * (1 - config.holdout_fraction):.0f} % "
+        "of each drive, body accelerations (weighted like the fit) predicted on the last "
         f"{100 * config.holdout_fraction:.0f} %; the simplest model that predicts them "
         "significantly better (paired block t >= 3, gain >= 2 % per parameter, parameters "
         f"physical and > 2 std) chosen, greedily up to {config.max_effects} effects; "
@@ -848,7 +1162,28 @@ def _diagnose(before: VehicleRecording, after: VehicleRecording, added_mass_kg: 
         linear_model=_model_dict(base_all), augmented_model=_model_dict(chosen_all),
         sessions=sessions, band_hz=(lo, hi), method=method, cross_validation=cv,
         fit=_fit_traces(base_all, chosen_all, drives, names, hold_parts),
-        vehicle=before.geometry.to_dict())
+        vehicle=before.geometry.to_dict(),
+        noise=_noise_dict(body_sigma, edges, base_all, chosen_all, weights,
+                          0.5 * fit_drives[0].rate_hz))
+
+
+def _noise_dict(body_sigma: Sequence[float] | None, edges: np.ndarray | None,
+                base: _Fitted, chosen: _Fitted, weights: Sequence[Any], nyquist_hz: float
+                ) -> dict[str, Any]:
+    """The noise the compensation used: the body sensors' per drive; the hubs' per drive
+    and band (white-equivalent, each hub's variance) as the linear and the chosen model's
+    equation errors gave it, or the body sensors' where that fit collapsed (``..._fallback``);
+    the bands' edges, the last one the analysis rate's Nyquist frequency."""
+    if body_sigma is None:
+        return {}
+    out: dict[str, Any] = {"body_noise_std_mps2": [float(v) for v in body_sigma],
+                           "frequency_weighting": weights[0] is not None}
+    if edges is not None:
+        out["band_edges_hz"] = [float(min(v, nyquist_hz)) for v in edges]
+        for label, f in (("linear", base), ("chosen", chosen)):
+            out[f"hub_noise_std_mps2_{label}"] = np.sqrt(f.hub_noise_s2[:, 0]).tolist()
+            out[f"hub_noise_fallback_{label}"] = bool(f.hub_fallback)
+    return out
 
 
 def _start_s(rec: VehicleRecording, cfg: VehicleIdentifyConfig) -> float:

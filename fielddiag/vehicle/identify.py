@@ -659,6 +659,55 @@ def drive_noise(rec: VehicleRecording, d: DriveRegressors, cfg: VehicleIdentifyC
     return DriveNoise(known, hub, s2)
 
 
+def weighted_drives(recs: Sequence[VehicleRecording], drives: Sequence[DriveRegressors],
+                    fitted: np.ndarray, block: int, cfg: VehicleIdentifyConfig,
+                    body_sigma_mps2: Sequence[float],
+                    car_sigma_mps2: Sequence[tuple[float, float]]
+                    ) -> tuple[list[Callable[[np.ndarray], np.ndarray]], list[DriveRegressors]]:
+    """The frequency weighting of step 3 and the drives prepared with it: a first fit flat
+    in frequency, the hubs taken as noisy as the body sensors, gives the equations' noise
+    transfer, whose inverse square root is the weight (:func:`noise_weighting`).
+
+    Parameters
+    ----------
+    recs : sequence of VehicleRecording
+        The drives as recorded.
+    drives : sequence of DriveRegressors
+        The same, prepared flat (:func:`prepare_drive`), with their added mass.
+    fitted : ndarray of bool
+        Parameters fitted.
+    block : int
+        Jackknife block [samples] (the Gram matrices' blocks).
+    cfg : VehicleIdentifyConfig
+    body_sigma_mps2 : sequence of float
+        Per drive, the body sensors' noise (:func:`body_noise_std_mps2`).
+    car_sigma_mps2 : sequence of (float, float)
+        Per drive, the car acceleration signals' noise (:func:`car_accel_noise_std_mps2`).
+
+    Returns
+    -------
+    weights : list of callable
+        Per drive, ``weight(f_hz) -> gain``.
+    weighted : list of DriveRegressors
+        Per drive, prepared again with its weight (added mass as in ``drives``).
+    """
+    edges = band_edges_hz(cfg.band_hz, cfg.hub_noise_bands)
+    g = [block_grams(d, block) for d in drives]
+    noise = [drive_noise(rec, d, cfg, None, edges, bs, cs)
+             for rec, d, bs, cs in zip(recs, drives, body_sigma_mps2, car_sigma_mps2,
+                                       strict=True)]
+    first = compensated_least_squares([x for x, _ in g], [n for _, n in g], fitted, noise,
+                                      jackknife=False)
+    weights = [noise_weighting(d, first.theta, [bs] * 8, cs, cfg.band_hz)
+               for d, bs, cs in zip(drives, body_sigma_mps2, car_sigma_mps2, strict=True)]
+    weighted = []
+    for rec, d, wt in zip(recs, drives, weights, strict=True):
+        dw = prepare_drive(rec, cfg, wt)
+        dw.added_mass_kg, dw.added_mass_at_m = d.added_mass_kg, d.added_mass_at_m
+        weighted.append(dw)
+    return weights, weighted
+
+
 def _compensated_fit(recs: Sequence[VehicleRecording], drives: Sequence[DriveRegressors],
                      fitted: np.ndarray, block: int, cfg: VehicleIdentifyConfig
                      ) -> tuple[WlsResult, WlsResult, dict[str, Any]]:
@@ -680,19 +729,11 @@ def _compensated_fit(recs: Sequence[VehicleRecording], drives: Sequence[DriveReg
         return [x for x, _ in g], [n for _, n in g]
 
     weights: list[Callable[[np.ndarray], np.ndarray] | None] = [None] * len(recs)
-    grams, samples = grams_of(drives)
     fit_drives = list(drives)
     if cfg.noise_weighting:
-        first = compensated_least_squares(grams, samples, fitted, setup(drives, weights),
-                                          jackknife=False)
-        weights = [noise_weighting(d, first.theta, [bs] * 8, cs, cfg.band_hz)
-                   for d, bs, cs in zip(drives, body_sigma, car_sigma, strict=True)]
-        fit_drives = []
-        for rec, d, wt in zip(recs, drives, weights, strict=True):
-            dw = prepare_drive(rec, cfg, wt)
-            dw.added_mass_kg, dw.added_mass_at_m = d.added_mass_kg, d.added_mass_at_m
-            fit_drives.append(dw)
-        grams, samples = grams_of(fit_drives)
+        weights, fit_drives = weighted_drives(recs, drives, fitted, block, cfg, body_sigma,
+                                              car_sigma)
+    grams, samples = grams_of(fit_drives)
     info: dict[str, Any] = {"body_noise_std_mps2": body_sigma,
                             "car_accel_noise_std_mps2": car_sigma, "band_edges_hz": edges,
                             "weights": weights}

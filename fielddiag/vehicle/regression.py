@@ -35,9 +35,9 @@ import numpy as np
 from fielddiag.channels import CORNERS
 
 __all__ = ["EQUATION_PAIRS", "PARAM_NAMES", "DriveNoise", "DriveRegressors", "WlsResult",
-           "band_split", "block_grams", "compensated_least_squares", "equation_error_transfer",
-           "equation_rows", "noise_gram", "noise_normal_equations", "predict_body_accel",
-           "regressors", "weighted_least_squares"]
+           "band_split", "band_split_signals", "block_grams", "compensated_least_squares",
+           "equation_error_transfer", "equation_rows", "noise_gram", "noise_normal_equations",
+           "predict_body_accel", "regressors", "weighted_least_squares"]
 
 #: The parameters of the linear-in-parameters model, in order.
 PARAM_NAMES = ("mass_kg", "first_moment_x_kgm", "first_moment_y_kgm", "pitch_inertia_origin_kgm2",
@@ -433,20 +433,39 @@ def noise_normal_equations(d: DriveRegressors, sigma_mps2: Sequence[float],
     return {first_group + e: (g[e, :p, :p], g[e, :p, p]) for e in range(3)}
 
 
+def band_split_signals(x: np.ndarray, rate_hz: float, band_edges_hz: Sequence[float]
+                       ) -> np.ndarray:
+    """Signals split into frequency bands along their last (time) axis.
+
+    Parameters
+    ----------
+    x : ndarray (..., n)
+        Signals sampled at ``rate_hz``.
+    rate_hz : float
+    band_edges_hz : sequence of float
+        Increasing edges; band ``j`` is ``[edge_j, edge_j+1)`` (circular FFT over ``n``).
+
+    Returns
+    -------
+    ndarray (n_bands, ..., n)
+        The parts; they sum to ``x`` when the edges span 0 to inf.
+    """
+    n = x.shape[-1]
+    f = np.fft.rfftfreq(n, 1.0 / rate_hz)
+    band = np.searchsorted(np.asarray(band_edges_hz, float), f, side="right") - 1
+    spec = np.fft.rfft(x, axis=-1)
+    return np.stack([np.fft.irfft(np.where(band == j, spec, 0.0), n, axis=-1)
+                     for j in range(len(band_edges_hz) - 1)])
+
+
 def band_split(d: DriveRegressors, band_edges_hz: Sequence[float]) -> list[DriveRegressors]:
     """The drive's regressor signals split into frequency bands (``[edge_j, edge_j+1)``,
-    circular FFT over the drive); they sum to the drive. Only what :func:`equation_rows`
-    reads is split."""
+    circular FFT over the drive, :func:`band_split_signals`); they sum to the drive. Only
+    what :func:`equation_rows` reads is split."""
     names = ("qdd", "r", "rd", "a_long", "a_lat")
-    f = np.fft.rfftfreq(d.n, 1.0 / d.rate_hz)
-    band = np.searchsorted(np.asarray(band_edges_hz, float), f, side="right") - 1
-    spectra = {k: np.fft.rfft(getattr(d, k), axis=-1) for k in names}
-    out = []
-    for j in range(len(band_edges_hz) - 1):
-        m = band == j
-        parts = {k: np.fft.irfft(np.where(m, v, 0.0), d.n, axis=-1) for k, v in spectra.items()}
-        out.append(replace(d, **parts))
-    return out
+    parts = {k: band_split_signals(getattr(d, k), d.rate_hz, band_edges_hz) for k in names}
+    return [replace(d, **{k: v[j] for k, v in parts.items()})
+            for j in range(len(band_edges_hz) - 1)]
 
 
 def block_grams(d: DriveRegressors, block_samples: int, pairs: bool = False
@@ -520,7 +539,8 @@ def compensated_least_squares(grams: Sequence[np.ndarray], samples: Sequence[np.
                               noise: Sequence[DriveNoise] | None = None,
                               band_grams: Sequence[np.ndarray] | None = None,
                               hub_iterations: int = 0, jackknife: bool = True,
-                              bias_correction: bool = False) -> WlsResult:
+                              bias_correction: bool = False,
+                              normal_covariance: bool = False) -> WlsResult:
     """Noise-compensated weighted least squares over drives given as block Gram matrices,
     optionally estimating the hub sensors' noise spectrum from the equation errors, with a
     delete-a-block jackknife covariance that repeats the whole estimate.
@@ -558,9 +578,13 @@ def compensated_least_squares(grams: Sequence[np.ndarray], samples: Sequence[np.
     hub_iterations : int
         Rounds of the hub-noise fixed point (0: ``DriveNoise.hub_s2`` used as given).
     jackknife : bool
-        Compute the covariance (else zero).
+        Compute the covariance (else zero, or see ``normal_covariance``).
     bias_correction : bool
         Subtract the jackknife's estimate of the estimator's bias.
+    normal_covariance : bool
+        Without the jackknife: the inverse of the final weighted, compensated normal
+        matrix as the covariance (right for residuals white in time with the groups'
+        variances; too small for band-passed residuals: for screening, not reporting).
 
     Returns
     -------
@@ -593,8 +617,8 @@ def compensated_least_squares(grams: Sequence[np.ndarray], samples: Sequence[np.
     k_dr = len(gb)
     m = cols.size
 
-    def solve(gf: list[np.ndarray], frac: list[float], s2: list[np.ndarray],
-              w: np.ndarray) -> np.ndarray:
+    def normal(gf: list[np.ndarray], frac: list[float], s2: list[np.ndarray],
+               w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         lhs = np.zeros((m, m))
         rhs = np.zeros(m)
         for k in range(k_dr):
@@ -604,7 +628,11 @@ def compensated_least_squares(grams: Sequence[np.ndarray], samples: Sequence[np.
                                    + np.einsum("cj,cejpq->epq", s2[k], hub[k][:, :3]))
             lhs += np.einsum("e,epq->pq", w[k] ** 2, c[:, :m, :m])
             rhs += np.einsum("e,ep->p", w[k] ** 2, c[:, :m, m])
-        return np.linalg.solve(lhs, rhs)
+        return lhs, rhs
+
+    def solve(gf: list[np.ndarray], frac: list[float], s2: list[np.ndarray],
+              w: np.ndarray) -> np.ndarray:
+        return np.linalg.solve(*normal(gf, frac, s2, w))
 
     def hub_update(th: np.ndarray, bf: list[np.ndarray], frac: list[float]
                    ) -> list[np.ndarray]:
@@ -673,6 +701,8 @@ def compensated_least_squares(grams: Sequence[np.ndarray], samples: Sequence[np.
             th = th - (nb - 1) * (mean_rep - th)
         dev = reps_a - mean_rep
         cov_s = (nb - 1) / nb * dev.T @ dev
+    elif normal_covariance and not jackknife:
+        cov_s = np.linalg.pinv(normal(gfull, ones, s2, w)[0])
     theta = np.full(p, np.nan)
     theta[cols] = th / scale
     cov = np.zeros((p, p))
