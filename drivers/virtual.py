@@ -670,13 +670,17 @@ class SlcanPty:
     A process holding this object "is" a CAN bus behind a serial adapter: python-can's
     ``slcan`` interface in another process opens :attr:`path` and receives the frames
     given to :meth:`send` once it has opened the channel (``O`` command). Commands are
-    acknowledged with ``\\r`` as real adapters do.
+    acknowledged with ``\\r`` as real adapters do. :meth:`time_since_first_open` is a
+    clock for a :class:`VirtualECU` that starts its drive when the host first opens the
+    channel (a recording starting), not when the process starts.
     """
 
     def __init__(self, link_name: str = "ttyVECU0") -> None:
         self.link = PtyLink(link_name, "vecu")
         self.path = self.link.path
         self.is_open = False
+        #: Monotonic time [s] the host first opened the channel (None: not yet).
+        self.first_opened_at_s: float | None = None
         self._cmd = bytearray()
         self._lock = threading.Lock()
         self.frames_sent = 0
@@ -694,6 +698,8 @@ class SlcanPty:
             del self._cmd[: i + 1]
             if cmd.startswith(b"O") or cmd.startswith(b"L"):
                 self.is_open = True
+                if self.first_opened_at_s is None:
+                    self.first_opened_at_s = time.monotonic()
             elif cmd.startswith(b"C"):
                 self.is_open = False
             if cmd.startswith(b"V"):
@@ -702,6 +708,14 @@ class SlcanPty:
                 self.link.write(b"NVECU\r")
             else:
                 self.link.write(b"\r")
+
+    def time_since_first_open(self) -> float:
+        """Seconds since the host first opened the channel, 0 before (the host's commands
+        are answered meanwhile): a :class:`VirtualECU` ``time_fn``."""
+        with self._lock:
+            self._poll()
+            t0 = self.first_opened_at_s
+        return 0.0 if t0 is None else time.monotonic() - t0
 
     def send(self, msg: Any, timeout: float | None = None) -> None:
         """Put a ``can.Message`` on the emulated bus."""
