@@ -162,8 +162,10 @@ def _check(args: argparse.Namespace) -> None:
     """Refuse options that do not go together."""
     vehicle.check_arguments(args)
     if args.full_vehicle and args.channels is not None:
-        raise FieldDiagError("--channels is for the quarter car: --full-vehicle streams its "
-                             "eight accelerometers (leave --channels out)")
+        raise FieldDiagError(
+            "--channels is for the quarter car: --full-vehicle streams its "
+            "eight accelerometers (leave --channels out)"
+        )
     if args.write_vehicle_file and not args.full_vehicle:
         raise FieldDiagError("--write-vehicle-file is for --full-vehicle")
 
@@ -175,8 +177,12 @@ def _signals(args: argparse.Namespace) -> tuple:
 
     if args.full_vehicle:
         stream = vehicle.vehicle_stream(args)
-        return (stream.signals_mps2, stream.daq_roles, stream.full_scale_mps2,
-                stream.drive.geometry)
+        return (
+            stream.signals_mps2,
+            stream.daq_roles,
+            stream.full_scale_mps2,
+            stream.drive.geometry,
+        )
     signals, _ = simulated_accelerations(
         args.duration,
         sample_rate_hz=args.rate,
@@ -195,26 +201,36 @@ def _full_scale(chosen_g: float | None, needed_mps2: float | None) -> float:
     if chosen_g is None:
         return 16.0 * G_MPS2 if needed_mps2 is None else needed_mps2
     if needed_mps2 is not None and chosen_g * G_MPS2 < needed_mps2 * (1 - 1e-12):
-        raise FieldDiagError(f"--full-scale-g {chosen_g:g}: the simulated hub accelerations "
-                             f"need {needed_mps2 / G_MPS2:g} g or more (leave it out to get "
-                             "that range)")
+        raise FieldDiagError(
+            f"--full-scale-g {chosen_g:g}: the simulated hub accelerations "
+            f"need {needed_mps2 / G_MPS2:g} g or more (leave it out to get "
+            "that range)"
+        )
     return chosen_g * G_MPS2
 
 
-def _hint(args: argparse.Namespace, port: str, vehicle_file: object, full_scale_g: float
-          ) -> str:
+def _hint(args: argparse.Namespace, port: str, vehicle_file: object, full_scale_g: float) -> str:
     """The lines for stderr: what streams, and how to record it."""
     if vehicle_file is None:
-        return (f"# virtual DAQ {args.channels or 2} ch at {args.rate:g} Hz ({args.format}); "
-                f"record with: fielddiag record --daq serial://{port} -o drive.h5; Ctrl-C to "
-                "stop")
-    record = ["fielddiag", "record", *vehicle.daq_record_args(port, vehicle_file, args),
-              "-o", "drive.h5"]
-    return "\n".join([
-        f"# virtual DAQ: a full vehicle (default car, rough road), 8 ch (per corner hub, "
-        f"body) at {args.rate:g} Hz ({args.format}, {full_scale_g:g} g); vehicle file "
-        f"{vehicle_file}; Ctrl-C to stop",
-        "# record with (add the --can/--signal arguments of `fielddiag virtual-ecu "
-        f"{vehicle.same_drive_args(args)}` for the speed and accelerations of this drive):",
-        shlex.join(record),
-    ])
+        return (
+            f"# virtual DAQ {args.channels or 2} ch at {args.rate:g} Hz ({args.format}); "
+            f"record with: fielddiag record --daq serial://{port} -o drive.h5; Ctrl-C to "
+            "stop"
+        )
+    record = [
+        "fielddiag",
+        "record",
+        *vehicle.daq_record_args(port, vehicle_file, args),
+        "-o",
+        "drive.h5",
+    ]
+    return "\n".join(
+        [
+            f"# virtual DAQ: a full vehicle (default car, rough road), 8 ch (per corner hub, "
+            f"body) at {args.rate:g} Hz ({args.format}, {full_scale_g:g} g); vehicle file "
+            f"{vehicle_file}; Ctrl-C to stop",
+            "# record with (add the --can/--signal arguments of `fielddiag virtual-ecu "
+            f"{vehicle.same_drive_args(args)}` for the speed and accelerations of this drive):",
+            shlex.join(record),
+        ]
+    )

@@ -141,13 +141,16 @@ def _check(args: argparse.Namespace) -> None:
     """Refuse options that do not go together; fill in the defaults of the mode."""
     vehicle.check_arguments(args)
     if args.full_vehicle and args.speed_kmh is not None:
-        raise FieldDiagError("--speed-kmh is a constant speed: --full-vehicle sends its "
-                             "simulated drive (leave --speed-kmh out)")
+        raise FieldDiagError(
+            "--speed-kmh is a constant speed: --full-vehicle sends its "
+            "simulated drive (leave --speed-kmh out)"
+        )
     if not args.full_vehicle:
         for flag, value in (("--added-mass", args.added_mass), ("--rate", args.rate)):
             if value is not None:
-                raise FieldDiagError(f"{flag} is for --full-vehicle (the quarter-car ECU "
-                                     "sends a speed profile only)")
+                raise FieldDiagError(
+                    f"{flag} is for --full-vehicle (the quarter-car ECU sends a speed profile only)"
+                )
     if args.duration is None:
         args.duration = vehicle.DEFAULT_DRIVE_S if args.full_vehicle else SPEED_PROFILE_S
     if args.full_vehicle:
@@ -175,15 +178,22 @@ def _series(args: argparse.Namespace) -> tuple:
 def _hint(args: argparse.Namespace, url: str) -> str:
     """The lines for stderr: what is sent, and how to record it."""
     if not args.full_vehicle:
-        return ("# virtual ECU: SPEED at 41 Hz, WHEEL_SPEEDS at 83 Hz; signals vehicle_speed="
-                "SPEED.SPEED, WHEEL_SPEED_FL ... (built-in DBC unless --dbc); Ctrl-C to stop")
-    start = ("starts when a recording first opens the bus" if args.interface == "slcan"
-             else "started now")
-    return "\n".join([
-        "# virtual ECU: a full vehicle (default car, rough road): SPEED at 41 Hz, "
-        "WHEEL_SPEEDS at 83 Hz, KINEMATICS (accel_long, accel_lat) at 100 Hz; the drive "
-        f"{start}; Ctrl-C to stop",
-        "# record it with these arguments (added to the `fielddiag record` command that "
-        f"`fielddiag virtual-daq {vehicle.same_drive_args(args)}` prints):",
-        shlex.join(vehicle.ecu_record_args(url)),
-    ])
+        return (
+            "# virtual ECU: SPEED at 41 Hz, WHEEL_SPEEDS at 83 Hz; signals vehicle_speed="
+            "SPEED.SPEED, WHEEL_SPEED_FL ... (built-in DBC unless --dbc); Ctrl-C to stop"
+        )
+    start = (
+        "starts when a recording first opens the bus"
+        if args.interface == "slcan"
+        else "started now"
+    )
+    return "\n".join(
+        [
+            "# virtual ECU: a full vehicle (default car, rough road): SPEED at 41 Hz, "
+            "WHEEL_SPEEDS at 83 Hz, KINEMATICS (accel_long, accel_lat) at 100 Hz; the drive "
+            f"{start}; Ctrl-C to stop",
+            "# record it with these arguments (added to the `fielddiag record` command that "
+            f"`fielddiag virtual-daq {vehicle.same_drive_args(args)}` prints):",
+            shlex.join(vehicle.ecu_record_args(url)),
+        ]
+    )
