@@ -17,6 +17,7 @@ from __future__ import annotations
 import json
 import multiprocessing
 import os
+import re
 from collections.abc import Iterator
 from concurrent.futures import Future, ProcessPoolExecutor
 
@@ -121,6 +122,8 @@ def test_cli_pair_with_plots(pending, tmp_path, capsys):
     ]
     text = capsys.readouterr().out
     assert "asymmetric" in text and "MISSING PHYSICS" in text
+    # the finding's parameters are printed with their standard deviations
+    assert re.search(r"\* asymmetric_damping.*= [\d.]+ \+- [\d.]+", text), text
     # the linear part refitted with the finding, in SI units, beside the linear model alone
     m2 = out["augmented_model"]["sprung_mass_kg"]
     s2 = out["augmented_model_std"]["sprung_mass_kg"]
