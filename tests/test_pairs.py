@@ -184,6 +184,9 @@ def _values_without_std(text: str) -> list[str]:
     return bad
 
 
+# identify and diagnose in fresh processes: with a cold numba cache the diagnosis compiles
+# every effect's kernels first (several minutes on two cores shared with other tests)
+@pytest.mark.timeout(1200)
 def test_no_summary_prints_a_value_without_its_std(tmp_path):
     """identify and diagnose on the committed friction pair: every mass, stiffness and
     damping printed comes with its standard deviation, and the diagnosis's headline is

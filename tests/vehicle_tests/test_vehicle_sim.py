@@ -115,7 +115,10 @@ def test_refusals():
 
 def test_fast_and_session_round_trip(tmp_path):
     car = VehicleParams()
-    simulate_vehicle(car, duration_s=1.0, seed=0)  # compile (cached on disk)
+    friction = {"fl": [CoulombFriction(friction_force_n=60.0)]}
+    # compile the loop of this combination of effects first (cached on disk; with a cold
+    # cache and the tests spread over processes nobody else may have compiled it yet)
+    simulate_vehicle(car, duration_s=1.0, seed=0, effects=friction)
     t0 = time.process_time()  # CPU time: the machine is shared, wall time is not ours
     d = simulate_vehicle(car, duration_s=180.0, sample_rate_hz=500.0, seed=5,
                          effects={"fl": [CoulombFriction(friction_force_n=60.0)]},
