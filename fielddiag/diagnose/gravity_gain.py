@@ -48,6 +48,12 @@ GRAVITY_BAND = (0.8, 1.2)
 WINDOW_S = 10.0
 #: Fewest windows for a level with a scatter.
 MIN_WINDOWS = 4
+#: A gain change is a fault of one sensor: when one channel's level moved by at least
+#: this many standard deviations and the other's is consistent with no change (within
+#: :data:`UNCHANGED_Z`), the ratio is the moved channel's change with its own std (the
+#: other's reading, uninformative where its level is noisy or clipped, is not added).
+SINGLE_CHANNEL_Z = 3.0
+UNCHANGED_Z = 2.0
 
 
 @dataclass(frozen=True)
@@ -155,12 +161,16 @@ class GravityGain:
         transmissibility.
     ratio_std : float
         Its standard deviation.
+    single_channel : bool
+        The ratio is one channel's change, the other's taken as unchanged
+        (:data:`SINGLE_CHANNEL_Z`).
     """
 
     wheel: ChannelGain
     body: ChannelGain
     ratio_change: float
     ratio_std: float
+    single_channel: bool = False
 
     def culprit(self) -> ChannelGain:
         """The channel whose gain moved more (in standard deviations)."""
@@ -174,7 +184,9 @@ class GravityGain:
         return (f"the {c.channel} accelerometer's gravity reading went from "
                 f"{c.levels_mps2[0]:.3f} to {c.levels_mps2[1]:.3f} m/s2 "
                 f"({100 * c.change:+.1f} +- {100 * c.std:.1f} %); the {o.channel}'s "
-                f"moved {100 * o.change:+.1f} +- {100 * o.std:.1f} %")
+                f"moved {100 * o.change:+.1f} +- {100 * o.std:.1f} %"
+                + (" (consistent with no change: taken as unchanged)"
+                   if self.single_channel else ""))
 
 
 def _channel_gain(channel: str, a: GravityLevel, b: GravityLevel) -> ChannelGain:
@@ -209,6 +221,12 @@ def gain_from_gravity(drives) -> GravityGain | None:
             return None
         levels[ch] = _channel_gain(ch, pair[0], pair[1])
     w, b = levels["wheel"], levels["body"]
+    for moved, still in ((b, w), (w, b)):
+        if moved.z >= SINGLE_CHANNEL_Z and still.z < UNCHANGED_Z and moved.z > still.z:
+            if moved is b:
+                return GravityGain(w, b, b.change, b.std, single_channel=True)
+            ratio = 1.0 / (1.0 + w.change)
+            return GravityGain(w, b, ratio - 1.0, ratio * ratio * w.std, single_channel=True)
     ratio = (1.0 + b.change) / (1.0 + w.change)
     std = abs(ratio) * math.hypot(b.std / (1.0 + b.change), w.std / (1.0 + w.change))
     return GravityGain(w, b, ratio - 1.0, std)

@@ -102,6 +102,13 @@ class ParamSpec:
     significant : bool
         A fitted value within two standard deviations of zero (or negative) means the
         effect is not there: the diagnosis calls it unphysical.
+    resolved_travel : bool
+        A travel over which an internal state changes (a hysteresis's yield travel). A
+        fit keeps it at or above the travel the data resolve
+        (:data:`fielddiag.identify.greybox_model.RESOLVED_TRAVEL_FRACTION` of the
+        suspension's rms travel per sample): shorter, the loop closes between two samples,
+        the data cannot tell it from its limit (friction) and the state would need
+        ever more substeps.
     """
 
     name: str
@@ -117,6 +124,7 @@ class ParamSpec:
     valid_low: float | None = None
     valid_strict: bool = False
     significant: bool = False
+    resolved_travel: bool = False
 
     def per_unit_mass_name(self) -> str:
         """Name of the per-unit-mass value (``..._per_kg`` for force-scaled parameters).

@@ -89,7 +89,7 @@ class BoucWen(Effect):
                   valid_low=0.0, valid_strict=True, significant=True),
         ParamSpec("yield_displacement_m", "m", 5e-5, 0.05, 2e-3, False,
                   "hysteresis yield travel", "drive over small ripples (many small reversals)",
-                  valid_low=0.0, valid_strict=True),
+                  valid_low=0.0, valid_strict=True, resolved_travel=True),
         ParamSpec("yield_exponent", "1", 0.5, 6.0, 2.0, False, "yield sharpness",
                   "drive over small ripples (many small reversals)", shape=True,
                   default=2.0),

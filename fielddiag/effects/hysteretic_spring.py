@@ -72,7 +72,7 @@ class HystereticSpring(Effect):
         ParamSpec("yield_displacement_m", "m", 5e-5, 0.05, 2e-3, False,
                   "hysteresis yield displacement",
                   "drive over small ripples (many small reversals)",
-                  valid_low=0.0, valid_strict=True),
+                  valid_low=0.0, valid_strict=True, resolved_travel=True),
     )
     kernel = _hysteretic_spring
     state_partials = _hysteretic_spring_partials

@@ -456,6 +456,12 @@ class ForceModel:
         return np.array([p.scales_with_force for p in self.specs], dtype=bool)
 
     @property
+    def resolved_travel(self) -> np.ndarray:
+        """Boolean mask of the travels the data must resolve
+        (:attr:`~fielddiag.effects.base.ParamSpec.resolved_travel`)."""
+        return np.array([p.resolved_travel for p in self.specs], dtype=bool)
+
+    @property
     def lower(self) -> np.ndarray:
         """Lower bounds of the parameters (absolute SI values; ``-inf`` when free)."""
         return np.array([p.lower for p in self.specs], dtype=float)

@@ -88,6 +88,25 @@ def test_a_drifting_bias_widens_the_std():
     assert abs(drifting.body.change) < 3 * drifting.body.std
 
 
+def test_one_sensors_change_is_not_blurred_by_the_other_channels_noisy_level():
+    # the wheel's level drifts (its std ~1 %), the body's gain moved 1.5 %: a gain change is
+    # one sensor's fault, so the ratio is the body's change with the body's std
+    assert gain_from_gravity([_drive(11), _drive(12, body_gain=1.015)]).single_channel
+    drifting = _drive(12, body_gain=1.015)
+    drifting.wheel_accel_mps2 = drifting.wheel_accel_mps2 + 4e-3 * drifting.time_s
+    g = gain_from_gravity([_drive(11), drifting])
+    assert g.wheel.std > 3 * g.body.std and abs(g.wheel.change) < 2 * g.wheel.std
+    assert g.single_channel
+    assert g.ratio_change == pytest.approx(0.015, abs=3 * g.ratio_std)
+    assert g.ratio_std == pytest.approx(g.body.std)
+    assert abs(g.ratio_change) / g.ratio_std > 5  # the wheel's noise would hide it
+    assert "taken as unchanged" in g.describe()
+    # nothing moved: the full ratio, with both channels' stds
+    same = gain_from_gravity([_drive(11), _drive(12)])
+    assert not same.single_channel
+    assert same.ratio_std == pytest.approx(np.hypot(same.body.std, same.wheel.std), rel=0.05)
+
+
 def test_gravity_needs_both_channels_of_both_drives():
     a, b = _drive(7), _drive(8)
     b.wheel_accel_mps2 = b.wheel_accel_mps2 - GRAVITY_MPS2
