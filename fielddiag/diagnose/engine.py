@@ -1253,10 +1253,26 @@ def diagnose_drives(
     # passive sag (the contract) and, in pair mode, a ride height restored after the mass
     # was added (self-levelling) compete for every effect that acts on position
     restored_on = _with_ride_height(prepared, True)
+    # the data problems the recording suggests (tested against the physics below); an
+    # effect that looks like one of them is fitted whatever its signature says
+    hypotheses = []
+    gravity = gain_from_gravity(drives) if mode == "pair" else None
+    if fd is not None:
+        lin = fd.linear or {_LINEAR_SI[k]: v for k, v in base.candidate.values.items()
+                            if k in _LINEAR_SI}
+        hypotheses = fd.hypotheses(lin, gravity)
+    if not any(h.kind == "channel_time_offset" for h in hypotheses):
+        found = _time_domain_offset(base)
+        if found is not None:
+            hypotheses.append(found)
+    suggested = {h.kind for h in hypotheses}
     singles = []
     for e in effects:
         sig = screening.get(e)
-        if EFFECTS[e].n_states and (sig is None or sig["t"] < STATEFUL_SCREEN_T):
+        twin = sorted(suggested & set(EFFECTS[e].data_twins))
+        if twin:
+            say(f"  {e}: looks like a {_DATA_LABEL[twin[0]]}; fitted to compete with it")
+        elif EFFECTS[e].n_states and (sig is None or sig["t"] < STATEFUL_SCREEN_T):
             # an effect with internal states costs one simulation per parameter and step
             # in the full fit: it is fitted where its signature predicts held-out data
             # better than the linear model at all
@@ -1330,16 +1346,6 @@ def diagnose_drives(
         return lin
 
     # data problems compete with the physics: each is corrected and the models refitted
-    hypotheses = []
-    gravity = gain_from_gravity(drives) if mode == "pair" else None
-    if fd is not None:
-        lin = fd.linear or {_LINEAR_SI[k]: v for k, v in base.candidate.values.items()
-                            if k in _LINEAR_SI}
-        hypotheses = fd.hypotheses(lin, gravity)
-    if not any(h.kind == "channel_time_offset" for h in hypotheses):
-        found = _time_domain_offset(base)
-        if found is not None:
-            hypotheses.append(found)
     offset_fit = None
     for hyp in hypotheses:
         say(f"testing a {_DATA_LABEL[hyp.kind]} ({_data_size(hyp)}) against the physics")
@@ -1375,6 +1381,13 @@ def diagnose_drives(
     sel = select_model(base.candidate, [f.candidate for f in fits[1:]])
     chosen = next(f for f in fits if f.candidate is sel.chosen)
     chosen = _decisive_data_problem(chosen, fits)
+    twin = _physics_twin(chosen, fits)
+    if twin is not None:
+        # the data problem predicts no better than physics that looks like it: it is not
+        # reported as a fault of the recording; the user is told both
+        chosen, note = twin
+        say("  " + note)
+        warnings.append(data_checks.DataWarning("data_problem_or_physics", note))
     if chosen.physics and chosen.physics != physics_fit.physics and chosen.data is not None:
         # a data problem plus physics the uncorrected data did not choose: fine, but say so
         say(f"  with the {_DATA_LABEL[chosen.data.kind]} corrected: "
@@ -1483,6 +1496,38 @@ def _decisive_data_problem(chosen: _Fit, fits: Sequence[_Fit]) -> _Fit:
         elif cmp.t >= MIN_T_SIGNIFICANT and cmp.relative_gain > 0:
             return f
     return chosen
+
+
+#: Two explanations of equal size (a top mount's lag, a late channel) are told apart only
+#: when one predicts the held-out data better by two standard errors of the difference
+#: (the usual 95 % level); a closer call is reported as both.
+TWIN_T = 2.0
+
+
+def _physics_twin(chosen: _Fit, fits: Sequence[_Fit]) -> tuple[_Fit, str] | None:
+    """Physics that looks like the chosen data problem and predicts the held-out data as
+    well (:attr:`~fielddiag.effects.base.Effect.data_twins`): the fit with it, and words
+    saying the two cannot be told apart. None when the data problem predicts better (by
+    :data:`TWIN_T`) or nothing looks like it."""
+    if chosen.data is None or chosen.data.prior is not None:
+        return None
+    kind = chosen.data.kind
+    twins = [f for f in fits if f.data is None and f.candidate.physical
+             and set(chosen.physics) < set(f.physics)
+             and any(kind in EFFECTS[e].data_twins for e in set(f.physics) - set(chosen.physics))]
+    if not twins:
+        return None
+    twin = min(twins, key=lambda f: f.candidate.mse_validation)
+    cmp = compare(twin.candidate, chosen.candidate)
+    if cmp.t >= TWIN_T:
+        return None
+    names = " + ".join(e.replace("_", " ") for e in set(twin.physics) - set(chosen.physics))
+    note = (f"the recording suggests a {_DATA_LABEL[kind]} ({_data_size(chosen.data)}), but "
+            f"a {names} explains the held-out data as well (t = {cmp.t:.1f} for the data "
+            "problem): these data cannot tell the two apart. The findings assume the "
+            f"{names}; check the recording (both channels on one DAQ clock with the same "
+            "filter) to rule the data problem out")
+    return twin, note
 
 
 def _data_size(hyp: DataHypothesis) -> str:

@@ -221,6 +221,10 @@ class Effect:
             kernel(r, rdot, x2, z, p, c, dp, dz) -> (F, dF/dr, dF/drdot, dF/dx2)
 
         where ``z`` holds the effect's states and ``dz`` receives ``dz/dt``.
+    data_twins : tuple of str
+        Data problems (:mod:`fielddiag.diagnose.data_hypotheses` kinds) this physics
+        looks like: where the data suggest one, the effect is fitted whatever its
+        screening said, so that the two compete (a top mount's lag and a late channel).
     state_partials : numba function or None
         Effects with internal states: the partial derivatives the sensitivity equations
         of the states need (the exact Jacobian of the grey-box fit and of
@@ -269,6 +273,7 @@ class Effect:
     diagnosis_rank: ClassVar[int] = 100
     n_states: ClassVar[int] = 0
     state_partials: ClassVar[Any] = None
+    data_twins: ClassVar[tuple[str, ...]] = ()
     description: ClassVar[str] = ""
     kernel: ClassVar[Any]
 
@@ -516,6 +521,23 @@ class Effect:
         (float, float, float)
         """
         return 0.0, 0.0, 0.0
+
+    def relaxation_rate_per_s(self, values: Sequence[float]) -> float:
+        """Rate [1/s] at which the internal states relax whatever the suspension's speed
+        (a linear state equation's eigenvalue; 0: none). The grey-box simulation's RK4
+        substeps keep ``step * rate`` within RK4's stability beside the speed-scaled rate
+        of :meth:`speed_bounds`.
+
+        Parameters
+        ----------
+        values : sequence of float
+            Parameter values in kernel order.
+
+        Returns
+        -------
+        float
+        """
+        return 0.0
 
     # ------------------------------------------------------------------ diagnosis
     def start_values(self, r_m: np.ndarray, start: Mapping[str, float]) -> dict[str, float]:

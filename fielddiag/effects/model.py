@@ -656,7 +656,9 @@ class ForceModel:
             ``ceil(step_s * rate / STATE_RATE_STEP)`` with ``rate`` the fastest state rate
             the effects report (:meth:`~fielddiag.effects.base.Effect.speed_bounds`,
             scaled from :data:`~fielddiag.effects.base.RATE_BOUND_MPS` to
-            ``max_rate_mps``; at most :data:`MAX_STATE_RATE_PER_S`). RK4 is stable to a
+            ``max_rate_mps``, and at least the states' relaxation rate,
+            :meth:`~fielddiag.effects.base.Effect.relaxation_rate_per_s`; at most
+            :data:`MAX_STATE_RATE_PER_S`). RK4 is stable to a
             step of 2.8 / rate; the
             states relax towards their saturation, so 1 / rate keeps them accurate.
         """
@@ -667,7 +669,8 @@ class ForceModel:
             p1 = p0 + len(t.params)
             if t.n_states:
                 q = float(t.speed_bounds(np.abs(theta[p0:p1]))[2])
-                rate = max(rate, q * max(max_rate_mps, 1e-6) / RATE_BOUND_MPS)
+                rate = max(rate, q * max(max_rate_mps, 1e-6) / RATE_BOUND_MPS,
+                           float(t.relaxation_rate_per_s(np.abs(theta[p0:p1]))))
             p0 = p1
         rate = min(rate, MAX_STATE_RATE_PER_S) if np.isfinite(rate) else MAX_STATE_RATE_PER_S
         return int(max(1, math.ceil(step_s * rate / STATE_RATE_STEP)))

@@ -44,6 +44,8 @@ class SeriesTopMount(Effect):
     """
 
     name = "series_top_mount"
+    # below its corner the mount delays the damper's force by c / k_m: a late body channel
+    data_twins = ("channel_time_offset",)
     diagnosable = True
     diagnosis_rank = 60
     description = "damper acting through a compliant top mount"
@@ -75,6 +77,20 @@ class SeriesTopMount(Effect):
             ``(k_m, c, k_m / c)``.
         """
         return values[1], values[0], values[1] / max(values[0], 1e-9)
+
+    def relaxation_rate_per_s(self, values: Sequence[float]) -> float:
+        """The mount's relaxation rate ``k_m / c`` [1/s], whatever the speed.
+
+        Parameters
+        ----------
+        values : sequence of float
+            Parameter values in kernel order (damping [N s/m], mount stiffness [N/m]).
+
+        Returns
+        -------
+        float
+        """
+        return values[1] / max(values[0], 1e-9)
 
     def start_values(self, r_m, start):
         """Start values: the linear damping and a mount 8x the spring's stiffness.
