@@ -1378,7 +1378,10 @@ def diagnose_drives(
                 say(f"testing a {_DATA_LABEL[g.kind]} ({_data_size(g)}) on top of the "
                     "time offset")
                 test_data(g)
-    sel = select_model(base.candidate, [f.candidate for f in fits[1:]])
+    # a data problem whose refined estimate is within MIN_Z standard deviations of zero is
+    # not told from none: its corrected fits do not compete
+    sel = select_model(base.candidate, [f.candidate for f in fits[1:] if f.data is None
+                                        or all(h.z >= MIN_Z for h in f.data.chain)])
     chosen = next(f for f in fits if f.candidate is sel.chosen)
     chosen = _decisive_data_problem(chosen, fits)
     twin = _physics_twin(chosen, fits)

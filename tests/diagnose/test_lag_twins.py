@@ -39,10 +39,10 @@ def _kinds(out):
 
 
 @pytest.mark.timeout(900)
-@pytest.mark.parametrize("tau_s", [2e-3, 0.6e-3])
-def test_a_stiff_top_mount_is_not_taken_for_a_late_channel(tau_s):
-    # the mount's relaxation time c / k_m: 2 ms, and 0.6 ms where its lag is a pure delay
-    # to the data (the two predict held-out data within two standard errors)
+def test_a_stiff_top_mount_is_not_taken_for_a_late_channel():
+    # the mount's relaxation time c / k_m is 0.6 ms: to the data its lag is a pure delay
+    # (the two predict held-out data within two standard errors; at 2 ms the mount wins)
+    tau_s = 0.6e-3
     c = _case().params["suspension_damping_ns_per_m"]
     case = _case([("series_top_mount", {"suspension_damping_ns_per_m": c,
                                         "mount_stiffness_n_per_m": c / tau_s})])
