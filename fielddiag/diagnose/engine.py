@@ -1386,8 +1386,8 @@ def diagnose_drives(
     chosen = _decisive_data_problem(chosen, fits)
     twin = _physics_twin(chosen, fits)
     if twin is not None:
-        # the data problem predicts no better than physics that looks like it: it is not
-        # reported as a fault of the recording; the user is told both
+        # a data problem and physics that looks like it predict alike: the better one is
+        # kept and the user is told both
         chosen, note = twin
         say("  " + note)
         warnings.append(data_checks.DataWarning("data_problem_or_physics", note))
@@ -1503,34 +1503,48 @@ def _decisive_data_problem(chosen: _Fit, fits: Sequence[_Fit]) -> _Fit:
 
 #: Two explanations of equal size (a top mount's lag, a late channel) are told apart only
 #: when one predicts the held-out data better by two standard errors of the difference
-#: (the usual 95 % level); a closer call is reported as both.
+#: (the usual 95 % level); a closer call keeps the better one and names the other.
 TWIN_T = 2.0
 
 
 def _physics_twin(chosen: _Fit, fits: Sequence[_Fit]) -> tuple[_Fit, str] | None:
-    """Physics that looks like the chosen data problem and predicts the held-out data as
-    well (:attr:`~fielddiag.effects.base.Effect.data_twins`): the fit with it, and words
-    saying the two cannot be told apart. None when the data problem predicts better (by
-    :data:`TWIN_T`) or nothing looks like it."""
-    if chosen.data is None or chosen.data.prior is not None:
+    """A data problem and physics that looks like it
+    (:attr:`~fielddiag.effects.base.Effect.data_twins`) that predict the held-out data
+    within :data:`TWIN_T` standard errors of each other: the better of the two (which the
+    selection chose, unless it chose the data problem over physics that predicts better)
+    and words saying both explain the recording. None when one is clearly better or
+    nothing looks like the chosen model."""
+    def looks_like(f: _Fit, g: _Fit) -> bool:
+        """``f`` adds to ``g``'s physics an effect that looks like ``g``'s data problem."""
+        return (g.data is not None and g.data.prior is None and f.data is None
+                and f.candidate.physical and set(g.physics) < set(f.physics)
+                and any(g.data.kind in EFFECTS[e].data_twins
+                        for e in set(f.physics) - set(g.physics)))
+
+    if chosen.data is not None:
+        pairs = [(f, chosen) for f in fits if looks_like(f, chosen)]
+    else:
+        pairs = [(chosen, g) for g in fits if looks_like(chosen, g)]
+    if not pairs:
         return None
-    kind = chosen.data.kind
-    twins = [f for f in fits if f.data is None and f.candidate.physical
-             and set(chosen.physics) < set(f.physics)
-             and any(kind in EFFECTS[e].data_twins for e in set(f.physics) - set(chosen.physics))]
-    if not twins:
+    twin, data = min(pairs, key=lambda p: p[1 - (chosen is p[1])].candidate.mse_validation)
+    t = compare(twin.candidate, data.candidate).t  # > 0: the data problem predicts better
+    if abs(t) >= TWIN_T:
         return None
-    twin = min(twins, key=lambda f: f.candidate.mse_validation)
-    cmp = compare(twin.candidate, chosen.candidate)
-    if cmp.t >= TWIN_T:
-        return None
-    names = " + ".join(e.replace("_", " ") for e in set(twin.physics) - set(chosen.physics))
-    note = (f"the recording suggests a {_DATA_LABEL[kind]} ({_data_size(chosen.data)}), but "
-            f"a {names} explains the held-out data as well (t = {cmp.t:.1f} for the data "
-            "problem): these data cannot tell the two apart. The findings assume the "
-            f"{names}; check the recording (both channels on one DAQ clock with the same "
-            "filter) to rule the data problem out")
-    return twin, note
+    pick = chosen if (chosen is data) == (t >= 0) else (data if chosen is twin else twin)
+    names = " + ".join(e.replace("_", " ") for e in set(twin.physics) - set(data.physics))
+    problem = f"a {_DATA_LABEL[data.data.kind]} ({_data_size(data.data)})"
+    told = (f"{problem} and a {names} explain the held-out data within two standard errors "
+            f"(t = {abs(t):.1f} for the {'data problem' if t >= 0 else names}): these data "
+            "cannot tell the two apart. ")
+    if pick is data:
+        note = told + (f"The findings assume the {problem[2:]}; a {names} would explain it "
+                       "as well")
+    else:
+        note = told + (f"The findings assume the {names}; check the recording (both "
+                       "channels on one DAQ clock with the same filter) to rule the data "
+                       "problem out")
+    return pick, note
 
 
 def _data_size(hyp: DataHypothesis) -> str:

@@ -1,10 +1,10 @@
 """A stiff top mount and a late body channel both delay the body's response: they compete.
 
 A rubber top mount in series with the damper delays the damper's force by ``c / k_m``;
-below its corner that is a late body channel to the transmissibility's phase. The data
-check's time offset must not be reported where the mount explains the recording as well
-(it was, in the randomized benchmark: 0.46 ms "found" on a car with a 0.45 ms mount), and
-a real channel skew must still beat the mount. Cases from the randomized generator's
+below its corner that is a late body channel to the transmissibility's phase. Where the
+two predict alike the tool must say so (it reported a bare 0.46 ms "skew" on a car with a
+0.45 ms mount in the randomized benchmark), and a real channel skew must still be
+reported, not turned into a mount. Cases from the randomized generator's
 linear car (seed 100 of benchmarks/random_cases.py, 244 Hz), 60 s drives.
 """
 
@@ -48,16 +48,19 @@ def test_a_stiff_top_mount_is_not_taken_for_a_late_channel():
                                         "mount_stiffness_n_per_m": c / tau_s})])
     diag = diagnose_drives(rc.case_drives(case))
     out = diag.to_dict()
-    assert not [w for w in diag.data_problems() if w.kind == "channel_time_offset"]
-    assert "channel_time_offset" not in _kinds(out)
+    # the two predict alike: the tool keeps the better and says both, never a bare skew
+    assert "data_problem_or_physics" in _kinds(out)
+    note = next(w["message"] for w in out["warnings"] if w["kind"] == "data_problem_or_physics")
+    assert "cannot tell the two apart" in note and "series top mount" in note
+    assert "time offset" in note
     named = [f["effect"] for f in out["findings"]]
-    assert named == ["series_top_mount"], named
-    k_m = out["findings"][0]["parameters"]["mount_stiffness_n_per_m"]
-    assert k_m == pytest.approx(c / tau_s, rel=0.1)
-    if "data_problem_or_physics" in _kinds(out):
-        note = next(w["message"] for w in out["warnings"]
-                    if w["kind"] == "data_problem_or_physics")
-        assert "cannot tell the two apart" in note and "series top mount" in note
+    assert named in ([], ["series_top_mount"]), named
+    if named:
+        k_m = out["findings"][0]["parameters"]["mount_stiffness_n_per_m"]
+        assert k_m == pytest.approx(c / tau_s, rel=0.1)
+    else:
+        offset = [w for w in diag.data_problems() if w.kind == "channel_time_offset"]
+        assert offset[0].value == pytest.approx(tau_s, abs=0.2e-3)
 
 
 @pytest.mark.timeout(900)
@@ -69,7 +72,6 @@ def test_a_late_channel_beats_the_top_mount_that_looks_like_it():
     out = diag.to_dict()
     # the mount was fitted to compete with the delay, and lost
     assert any("series_top_mount: looks like a time offset" in s for s in lines)
-    assert "data_problem_or_physics" not in _kinds(out)
     assert not out["findings"]
     offset = [w for w in diag.data_problems() if w.kind == "channel_time_offset"]
     assert offset and offset[0].value == pytest.approx(1.5e-3, abs=3e-4)
