@@ -90,7 +90,7 @@ class SeriesTopMount(Effect):
         -------
         float
         """
-        return values[1] / max(values[0], 1e-9)
+        return self.speed_bounds(values)[2]
 
     def start_values(self, r_m, start):
         """Start values: the linear damping and a mount 8x the spring's stiffness.
