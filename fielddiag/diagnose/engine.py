@@ -354,8 +354,13 @@ def _equation_error_fit(
     k0 = start.get("linear_spring.suspension_stiffness_n_per_m", 2.4e4)
     r00 = [-prepared[k].fit.added_mass_kg * GRAVITY / max(k0, 1.0) for k in loaded]
     z0 = np.array([*th0, *([m0] if absolute else []), *r00], float)
-    lo = np.concatenate([model.lower, [1.0] if absolute else [], np.full(len(loaded), -0.5)])
-    hi = np.concatenate([model.upper, [1e5] if absolute else [], np.full(len(loaded), 0.5)])
+    # a yield travel or a relaxation time the data cannot resolve is out of reach (as in the
+    # grey-box fit): there the states' substeps grow without bound
+    lo_th, hi_th = model.resolved_bounds(
+        min(p.fit.travel_per_sample_m for p in prepared),
+        max(1.0 / p.fit.sample_rate_hz for p in prepared), np.asarray(th0, float))
+    lo = np.concatenate([lo_th, [1.0] if absolute else [], np.full(len(loaded), -0.5)])
+    hi = np.concatenate([hi_th, [1e5] if absolute else [], np.full(len(loaded), 0.5)])
     step = 1e-6 * np.maximum(np.abs(z0), 1.0)
     z0 = np.where(np.isfinite(lo) & (z0 <= lo), lo + step, z0)
     z0 = np.where(np.isfinite(hi) & (z0 >= hi), hi - step, z0)

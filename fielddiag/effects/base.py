@@ -105,7 +105,7 @@ class ParamSpec:
     resolved_travel : bool
         A travel over which an internal state changes (a hysteresis's yield travel). A
         fit keeps it at or above the travel the data resolve
-        (:data:`fielddiag.identify.greybox_model.RESOLVED_TRAVEL_FRACTION` of the
+        (:data:`fielddiag.effects.model.RESOLVED_FRACTION` of the
         suspension's rms travel per sample): shorter, the loop closes between two samples,
         the data cannot tell it from its limit (friction) and the state would need
         ever more substeps.
@@ -538,6 +538,26 @@ class Effect:
         float
         """
         return 0.0
+
+    def resolved_upper(self, values: Sequence[float], shortest_time_s: float
+                       ) -> np.ndarray | None:
+        """Upper bounds (kernel order) that keep the states' relaxation no faster than the
+        data resolve: a relaxation time of at least ``shortest_time_s`` at the other
+        parameters' ``values`` (None: no such limit, the default).
+
+        Parameters
+        ----------
+        values : sequence of float
+            Parameter values in kernel order (where the fit starts).
+        shortest_time_s : float
+            Shortest relaxation time the data resolve [s]
+            (:data:`fielddiag.effects.model.RESOLVED_FRACTION` of the sample interval).
+
+        Returns
+        -------
+        ndarray or None
+        """
+        return None
 
     # ------------------------------------------------------------------ diagnosis
     def start_values(self, r_m: np.ndarray, start: Mapping[str, float]) -> dict[str, float]:

@@ -48,6 +48,14 @@ STATE_LIMIT = 1e3
 #: grow without bound (1e120 was met): the derivatives through the states are then taken
 #: by forward differences of the whole run instead (finite steps, as before them).
 SENSITIVITY_GROWTH_LIMIT = 1e6
+#: What sampled data resolve, as a fraction of the sample interval: a travel an internal
+#: state changes over (a yield travel, :attr:`~fielddiag.effects.base.ParamSpec.resolved_travel`)
+#: is kept at or above this fraction of the suspension's rms travel per sample, and a
+#: state's relaxation time (a top mount's c / k_m, :meth:`~fielddiag.effects.base.Effect.resolved_upper`)
+#: at or above this fraction of the sample interval. Shorter, the state settles within a
+#: sample: the data see its limit (friction, a rigid mount) and cannot tell the two apart,
+#: while the state's RK4 substeps grow without bound (a fit wandering there took minutes).
+RESOLVED_FRACTION = 0.5
 
 
 def _force_many(r, rd, x2, theta, consts):  # pragma: no cover - numba template
@@ -80,8 +88,8 @@ def _force_many_z(r, rd, x2, z, theta, consts):  # pragma: no cover - numba temp
 
 
 def _force_path_z(r, rd, x2, z0, theta, consts, h, nsub):  # pragma: no cover - numba template
-    """The force along a measured path, the internal states integrated by RK4 (``nsub``
-    steps per sample interval, r, rdot and x2 linear between samples)."""
+    """The force along a measured path, the internal states integrated by RK4 (``nsub[i]``
+    steps in the interval after sample ``i``, r, rdot and x2 linear between samples)."""
     n = r.shape[0]
     nz = z0.shape[0]
     f = np.empty(n)
@@ -95,7 +103,6 @@ def _force_path_z(r, rd, x2, z0, theta, consts, h, nsub):  # pragma: no cover - 
     k3 = np.empty(nz)
     k4 = np.empty(nz)
     scratch = np.empty(max(theta.shape[0], 1))
-    hs = h / nsub
     for i in range(n):
         for j in range(nz):
             zs[i, j] = z[j]
@@ -106,10 +113,12 @@ def _force_path_z(r, rd, x2, z0, theta, consts, h, nsub):  # pragma: no cover - 
         ds[i, 2] = d
         if i == n - 1:
             break
-        for s in range(nsub):
-            w0 = s / nsub
-            wm = (s + 0.5) / nsub
-            w1 = (s + 1.0) / nsub
+        ns = nsub[i]
+        hs = h / ns
+        for s in range(ns):
+            w0 = s / ns
+            wm = (s + 0.5) / ns
+            w1 = (s + 1.0) / ns
             ra = r[i] + w0 * (r[i + 1] - r[i])
             va = rd[i] + w0 * (rd[i + 1] - rd[i])
             xa = x2[i] + w0 * (x2[i + 1] - x2[i])
@@ -207,7 +216,6 @@ def _force_path_zs(r, rd, x2, z0, sz0, theta, consts, h, nsub):  # pragma: no co
     dgz = np.zeros((nz, nz))
     dgp = np.zeros((nz, p))
     scratch = np.empty(max(p, 1))
-    hs = h / nsub
     for i in range(n):
         for j in range(nz):
             zs[i, j] = z[j]
@@ -224,10 +232,12 @@ def _force_path_zs(r, rd, x2, z0, sz0, theta, consts, h, nsub):  # pragma: no co
         ds[i, 2] = d
         if i == n - 1:
             break
-        for s in range(nsub):
-            w0 = s / nsub
-            wm = (s + 0.5) / nsub
-            w1 = (s + 1.0) / nsub
+        ns = nsub[i]
+        hs = h / ns
+        for s in range(ns):
+            w0 = s / ns
+            wm = (s + 0.5) / ns
+            w1 = (s + 1.0) / ns
             ra = r[i] + w0 * (r[i + 1] - r[i])
             va = rd[i] + w0 * (rd[i + 1] - rd[i])
             xa = x2[i] + w0 * (x2[i + 1] - x2[i])
@@ -461,6 +471,41 @@ class ForceModel:
         (:attr:`~fielddiag.effects.base.ParamSpec.resolved_travel`)."""
         return np.array([p.resolved_travel for p in self.specs], dtype=bool)
 
+    def resolved_bounds(self, travel_per_sample_m: float, sample_interval_s: float,
+                        theta: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Parameter bounds narrowed to what the data resolve (:data:`RESOLVED_FRACTION`).
+
+        Parameters
+        ----------
+        travel_per_sample_m : float
+            The suspension's rms travel per sample interval [m] (least over the sessions).
+        sample_interval_s : float
+            Sample interval of the data fitted [s].
+        theta : ndarray or None
+            Parameter vector the fit starts from (the relaxation limits of
+            :meth:`~fielddiag.effects.base.Effect.resolved_upper` are relative to it;
+            None: no such limits).
+
+        Returns
+        -------
+        (ndarray, ndarray)
+            Lower and upper bounds, ``(n_params,)`` each (lower <= upper).
+        """
+        lower = np.where(self.resolved_travel,
+                         np.maximum(self.lower, RESOLVED_FRACTION * travel_per_sample_m),
+                         self.lower)
+        upper = self.upper.copy()
+        if theta is not None:
+            theta = np.abs(np.asarray(theta, float))
+            p0 = 0
+            for t in self.terms:
+                p1 = p0 + len(t.params)
+                hi = t.resolved_upper(theta[p0:p1], RESOLVED_FRACTION * sample_interval_s)
+                if hi is not None:
+                    upper[p0:p1] = np.maximum(np.minimum(upper[p0:p1], hi), lower[p0:p1])
+                p0 = p1
+        return np.minimum(lower, upper), upper
+
     @property
     def lower(self) -> np.ndarray:
         """Lower bounds of the parameters (absolute SI values; ``-inf`` when free)."""
@@ -638,21 +683,22 @@ class ForceModel:
                     self.vector(values),
                     self.constant_values())
 
-    def state_substeps(self, theta: np.ndarray, max_rate_mps: float, step_s: float) -> int:
+    def state_substeps(self, theta: np.ndarray, max_rate_mps: float | np.ndarray,
+                       step_s: float) -> int | np.ndarray:
         """RK4 steps per interval ``step_s`` that keep the internal states stable and accurate.
 
         Parameters
         ----------
         theta : ndarray
             Parameter vector (absolute values).
-        max_rate_mps : float
-            Largest suspension rate on the path [m/s].
+        max_rate_mps : float or ndarray
+            Largest suspension rate on the path [m/s] (an array: in each interval).
         step_s : float
             Sample interval [s].
 
         Returns
         -------
-        int
+        int or ndarray of int64
             ``ceil(step_s * rate / STATE_RATE_STEP)`` with ``rate`` the fastest state rate
             the effects report (:meth:`~fielddiag.effects.base.Effect.speed_bounds`,
             scaled from :data:`~fielddiag.effects.base.RATE_BOUND_MPS` to
@@ -664,16 +710,41 @@ class ForceModel:
         """
         from fielddiag.effects.base import RATE_BOUND_MPS
 
-        rate, p0 = 0.0, 0
+        speed = np.maximum(np.asarray(max_rate_mps, float), 1e-6)
+        rate, p0 = np.zeros_like(speed), 0
         for t in self.terms:
             p1 = p0 + len(t.params)
             if t.n_states:
                 q = float(t.speed_bounds(np.abs(theta[p0:p1]))[2])
-                rate = max(rate, q * max(max_rate_mps, 1e-6) / RATE_BOUND_MPS,
-                           float(t.relaxation_rate_per_s(np.abs(theta[p0:p1]))))
+                rate = np.maximum(rate, np.maximum(
+                    q * speed / RATE_BOUND_MPS, float(t.relaxation_rate_per_s(np.abs(theta[p0:p1])))))
             p0 = p1
-        rate = min(rate, MAX_STATE_RATE_PER_S) if np.isfinite(rate) else MAX_STATE_RATE_PER_S
-        return int(max(1, math.ceil(step_s * rate / STATE_RATE_STEP)))
+        rate = np.where(np.isfinite(rate), np.minimum(rate, MAX_STATE_RATE_PER_S),
+                        MAX_STATE_RATE_PER_S)
+        nsub = np.maximum(1, np.ceil(step_s * rate / STATE_RATE_STEP)).astype(np.int64)
+        return int(nsub) if nsub.ndim == 0 else nsub
+
+    def path_substeps(self, theta: np.ndarray, rdot: np.ndarray, step_s: float) -> np.ndarray:
+        """RK4 steps in each interval of a given path (:meth:`state_substeps` at the
+        interval's own largest rate: few where the suspension moves slowly).
+
+        Parameters
+        ----------
+        theta : ndarray
+            Parameter vector (absolute values).
+        rdot : ndarray
+            ``(n,)`` suspension rate at the samples [m/s] (linear between them).
+        step_s : float
+            Sample interval [s].
+
+        Returns
+        -------
+        ndarray of int64
+            ``(n,)`` substeps in the interval after each sample (the last: its neighbour's).
+        """
+        a = np.abs(np.asarray(rdot, float))
+        speed = np.maximum(a, np.concatenate([a[1:], a[-1:]])) if a.size else np.zeros(1)
+        return np.ascontiguousarray(self.state_substeps(theta, speed, step_s), dtype=np.int64)
 
     def force_along_path(
         self,
@@ -690,7 +761,8 @@ class ForceModel:
 
         A memoryless model gives :meth:`force`. With internal states (hysteresis, a series
         top mount) the states start at ``initial_states`` (default: at rest at ``r[0]``,
-        :meth:`static_states`) and follow the path (RK4, ``r``, ``rdot`` and ``x2`` linear
+        :meth:`static_states`) and follow the path (RK4 with :meth:`path_substeps`, ``r``,
+        ``rdot`` and ``x2`` linear
         between samples). The force then depends on a parameter of a stateful term through
         the states too: where the effects give their state partials
         (:attr:`~fielddiag.effects.base.Effect.state_partials`) the states' sensitivities
@@ -734,7 +806,7 @@ class ForceModel:
             f, ds, dp = self.force(r, rdot, x2, theta)
             return f, ds, dp, np.zeros((r.size, 0))
         h = 1.0 / float(sample_rate_hz)
-        nsub = self.state_substeps(theta, float(np.max(np.abs(rdot))) if r.size else 0.0, h)
+        nsub = self.path_substeps(theta, rdot, h)
         path = self.compile(__name__, "_force_path_z", error_model="numpy")._force_path_z
 
         def run(th: np.ndarray) -> tuple[np.ndarray, ...]:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 
+import numpy as np
 from numba import njit
 
 from fielddiag.effects.base import INF, Effect, ParamSpec, register_effect
@@ -91,6 +92,24 @@ class SeriesTopMount(Effect):
         float
         """
         return self.speed_bounds(values)[2]
+
+    def resolved_upper(self, values: Sequence[float], shortest_time_s: float) -> np.ndarray:
+        """The mount stiffness at which its time constant ``c / k_m`` is ``shortest_time_s``
+        (a stiffer mount settles within a sample: the data see a rigid one).
+
+        Parameters
+        ----------
+        values : sequence of float
+            Damping [N s/m] and mount stiffness [N/m] where the fit starts.
+        shortest_time_s : float
+            Shortest relaxation time the data resolve [s].
+
+        Returns
+        -------
+        ndarray
+            ``(inf, c / shortest_time_s)``.
+        """
+        return np.array([np.inf, values[0] / shortest_time_s])
 
     def start_values(self, r_m, start):
         """Start values: the linear damping and a mount 8x the spring's stiffness.

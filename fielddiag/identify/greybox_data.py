@@ -87,6 +87,14 @@ class GreyBoxData:
         """Duration of the data [s] (``n_samples / sample_rate_hz``)."""
         return self.n_samples / self.sample_rate_hz
 
+    @property
+    def travel_per_sample_m(self) -> float:
+        """Rms suspension travel per sample interval [m]: the relative velocity's rms where
+        the body's motion is known, else the wheel's, over the rate."""
+        v = (self.wheel_vel_mps if self.body_vel_mps is None
+             else self.body_vel_mps - self.wheel_vel_mps)
+        return float(np.sqrt(np.mean(np.square(v)))) / float(self.sample_rate_hz)
+
     def segment(self, start_s: float | None = None, end_s: float | None = None) -> GreyBoxData:
         """The samples with ``start_s <= t < end_s`` (times from this data's first sample).
 

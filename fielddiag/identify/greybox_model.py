@@ -47,12 +47,6 @@ _NUISANCE_SCALE = np.array([1e-3, 1e-2])
 #: the Jacobian, not of the residual: the fit's result is the same, a very lightly damped
 #: body converges a little slower).
 INITIAL_STATE_MEMORY_S = 10.0
-#: A travel an internal state changes over (a yield travel,
-#: :attr:`~fielddiag.effects.base.ParamSpec.resolved_travel`) is kept at or above this
-#: fraction of the suspension's rms travel per sample interval, in the session where that
-#: is least: below it the hysteresis loop closes within a sample (the data see friction,
-#: its limit) and the state's substeps grow without bound.
-RESOLVED_TRAVEL_FRACTION = 0.5
 
 
 def _band_sos(band_hz: tuple[float, float] | None, fs: float, order: int = 4) -> np.ndarray | None:
@@ -159,9 +153,10 @@ class GreyBoxProblem:
         #: Simulation horizon [s] of a continuation stage (None: the whole record).
         self.horizon_s: float | None = None
         self._prep = [self._prepare(d) for d in self.data]
-        #: Shortest travel the data resolve [m] (see :data:`RESOLVED_TRAVEL_FRACTION`).
-        self.resolved_travel_m = min(_travel_per_sample_m(d) for d in self.data) \
-            * RESOLVED_TRAVEL_FRACTION
+        #: The suspension's rms travel per sample [m] and the sample interval [s] in the
+        #: session that resolves least (:meth:`ForceModel.resolved_bounds`).
+        self.travel_per_sample_m = min(d.travel_per_sample_m for d in self.data)
+        self.sample_interval_s = max(1.0 / d.sample_rate_hz for d in self.data)
         self._equilibria: dict[tuple, tuple[float, np.ndarray]] = {}
         self._equilibrium_jacobians: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
 
@@ -251,8 +246,8 @@ class GreyBoxProblem:
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """Lower and upper bounds of the fitted vector ``z``.
 
-        The model parameters take their :class:`~fielddiag.effects.ForceModel` bounds (a
-        travel the data must resolve at least :attr:`resolved_travel_m`), ``1/M2``
+        The model parameters take their :class:`~fielddiag.effects.ForceModel` bounds narrowed
+        to what the data resolve (:meth:`~fielddiag.effects.ForceModel.resolved_bounds`), ``1/M2``
         the inverse of the mass range [1/kg], the nuisances none.
 
         Returns
@@ -260,10 +255,10 @@ class GreyBoxProblem:
         (numpy.ndarray, numpy.ndarray)
             ``(n_fit,)`` each.
         """
-        lower = np.where(self.model.resolved_travel,
-                         np.maximum(self.model.lower, self.resolved_travel_m), self.model.lower)
-        lo = [np.minimum(lower, self.model.upper)[self.free_model]]
-        hi = [self.model.upper[self.free_model]]
+        lower, upper = self.model.resolved_bounds(self.travel_per_sample_m,
+                                                  self.sample_interval_s)
+        lo = [lower[self.free_model]]
+        hi = [upper[self.free_model]]
         if self.has_mass:  # fitted as the inverse mass 1/M2 [1/kg] (nearly linear)
             lo.append([1.0 / self.mass_bounds_kg[1]])
             hi.append([1.0 / self.mass_bounds_kg[0]])
@@ -363,7 +358,10 @@ class GreyBoxProblem:
         x_eq, z_eq = eq
         h = 1.0 / d.sample_rate_hz
         # the states' rates scale with the suspension's rate: measured where the body's
-        # motion is known, else bounded by twice the wheel's
+        # motion is known, else bounded by twice the wheel's. One count for the whole run
+        # (the simulated rate is not the measured one interval by interval: substeps
+        # that follow the measured rate, as on a given path, let a simulation that lags it
+        # go unstable)
         if d.body_vel_mps is not None:
             rate = float(np.max(np.abs(d.body_vel_mps - d.wheel_vel_mps)))
         else:
@@ -609,12 +607,3 @@ class GreyBoxProblem:
             th = per_group[groups[0]] * np.where(model.force_scaled, (mass + dm0) / mass, 1.0)
         th = np.clip(th, model.lower, model.upper)
         return th, mass
-
-
-
-
-def _travel_per_sample_m(d: GreyBoxData) -> float:
-    """Rms suspension travel per sample interval of one session [m]: the relative
-    velocity's rms where the body's motion is known, else the wheel's, over the rate."""
-    v = d.wheel_vel_mps if d.body_vel_mps is None else d.body_vel_mps - d.wheel_vel_mps
-    return float(np.sqrt(np.mean(np.square(v)))) / float(d.sample_rate_hz)
