@@ -358,7 +358,8 @@ def _equation_error_fit(
     # grey-box fit): there the states' substeps grow without bound
     lo_th, hi_th = model.resolved_bounds(
         min(p.fit.travel_per_sample_m for p in prepared),
-        max(1.0 / p.fit.sample_rate_hz for p in prepared), np.asarray(th0, float))
+        max(1.0 / p.fit.sample_rate_hz for p in prepared), np.asarray(th0, float),
+        per_unit_mass_kg=None if absolute else (1.0, 1e5))
     lo = np.concatenate([lo_th, [1.0] if absolute else [], np.full(len(loaded), -0.5)])
     hi = np.concatenate([hi_th, [1e5] if absolute else [], np.full(len(loaded), 0.5)])
     step = 1e-6 * np.maximum(np.abs(z0), 1.0)

@@ -472,7 +472,9 @@ class ForceModel:
         return np.array([p.resolved_travel for p in self.specs], dtype=bool)
 
     def resolved_bounds(self, travel_per_sample_m: float, sample_interval_s: float,
-                        theta: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                        theta: np.ndarray | None = None,
+                        per_unit_mass_kg: tuple[float, float] | None = None
+                        ) -> tuple[np.ndarray, np.ndarray]:
         """Parameter bounds narrowed to what the data resolve (:data:`RESOLVED_FRACTION`).
 
         Parameters
@@ -485,16 +487,25 @@ class ForceModel:
             Parameter vector the fit starts from (the relaxation limits of
             :meth:`~fielddiag.effects.base.Effect.resolved_upper` are relative to it;
             None: no such limits).
+        per_unit_mass_kg : (float, float) or None
+            The range of the mass [kg] when the force-scaled parameters are fitted per unit
+            mass (their SI bounds then hold for every mass in it); None: absolute values.
 
         Returns
         -------
         (ndarray, ndarray)
             Lower and upper bounds, ``(n_params,)`` each (lower <= upper).
         """
+        lower, upper = self.lower, self.upper.copy()
+        if per_unit_mass_kg is not None:
+            m_lo, m_hi = per_unit_mass_kg
+            scaled = self.force_scaled
+            lower = np.where(scaled & (lower > 0), lower / m_hi, lower)
+            lower = np.where(scaled & (lower < 0), lower / m_lo, lower)
+            upper = np.where(scaled & (upper > 0), upper / m_lo, upper)
+            upper = np.where(scaled & (upper < 0), upper / m_hi, upper)
         lower = np.where(self.resolved_travel,
-                         np.maximum(self.lower, RESOLVED_FRACTION * travel_per_sample_m),
-                         self.lower)
-        upper = self.upper.copy()
+                         np.maximum(lower, RESOLVED_FRACTION * travel_per_sample_m), lower)
         if theta is not None:
             theta = np.abs(np.asarray(theta, float))
             p0 = 0

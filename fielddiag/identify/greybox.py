@@ -245,7 +245,7 @@ def fit_greybox(
             th, m, _ = prob.unpack(q * scale)
             callback(it, _reported_values(model, th, m), cost)
 
-    q = z0 / scale
+    q = q0 = z0 / scale
     stages: list[dict[str, Any]] = []
     total_it = total_ev = 0
     if horizons_s is None:
@@ -264,6 +264,14 @@ def fit_greybox(
         stages.append({"horizon_s": float(hz), "iterations": st.iterations,
                        "cost": float(st.cost)})
     prob.horizon_s = None
+    if stages:
+        # the continuation is a way to the answer, not part of it: where it led somewhere
+        # the whole simulation fits worse than the start, the last stage begins at the start
+        cost_start, cost_led = (_simulation_cost(prob, v * scale) for v in (q0, q))
+        if cost_start < cost_led:
+            q = q0
+            stages.append({"horizon_s": None, "iterations": 0, "cost": cost_start,
+                           "restarted_from_start": True})
     out = solve(solver, fun, q, lo / scale, hi / scale,
                 max_iterations=max_iterations, xtol=xtol, callback=cb)
     stages.append({"horizon_s": None, "iterations": out.iterations, "cost": float(out.cost)})
@@ -294,6 +302,18 @@ def fit_greybox(
         result.sessions.extend(validate_greybox(result, validation, substeps=substeps))
     result.wall_time_s = time.perf_counter() - t_start
     return result
+
+
+def _simulation_cost(prob: GreyBoxProblem, z: np.ndarray) -> float:
+    """Half the sum of squares of the whole simulation's residual at ``z`` (inf where it
+    does not run)."""
+    with np.errstate(all="ignore"):
+        try:
+            r = prob.residual(z)
+        except (FloatingPointError, np.linalg.LinAlgError):
+            return np.inf
+    cost = 0.5 * float(r @ r)
+    return cost if np.isfinite(cost) else np.inf
 
 
 def _reported_values(model: ForceModel, theta_u: np.ndarray, mass: float | None

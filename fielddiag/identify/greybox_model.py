@@ -255,8 +255,11 @@ class GreyBoxProblem:
         (numpy.ndarray, numpy.ndarray)
             ``(n_fit,)`` each.
         """
+        # the force-scaled parameters are fitted per unit mass: their SI bounds hold for
+        # every mass in range
         lower, upper = self.model.resolved_bounds(self.travel_per_sample_m,
-                                                  self.sample_interval_s)
+                                                  self.sample_interval_s,
+                                                  per_unit_mass_kg=self.mass_bounds_kg)
         lo = [lower[self.free_model]]
         hi = [upper[self.free_model]]
         if self.has_mass:  # fitted as the inverse mass 1/M2 [1/kg] (nearly linear)
