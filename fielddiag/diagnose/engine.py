@@ -433,7 +433,7 @@ def _path_force(model: ForceModel, r: np.ndarray, rdot: np.ndarray, x2: np.ndarr
         if sl.size == 0:
             continue
         a, b, c, _ = model.force_along_path(r[sl], rdot[sl], x2[sl], th, float(rate_hz[sl[0]]),
-                                            state_jacobian=state_jacobian)
+                                            state_jacobian=state_jacobian, follow_rate=True)
         f[sl], dst[sl], dth[sl] = a, b, c
     return f, dst, dth
 

@@ -222,6 +222,7 @@ def fit_greybox(
                          prob.fixed_mass or m_init).items():
         th0[i] = v
     z0 = prob.pack(th0, m_init)
+    prob.start_theta = np.array(th0, dtype=float)
     lo, hi = prob.bounds()
     z0 = np.clip(z0, lo, hi)
     # normalisation: every fitted quantity relative to its start value

@@ -157,6 +157,9 @@ class GreyBoxProblem:
         #: session that resolves least (:meth:`ForceModel.resolved_bounds`).
         self.travel_per_sample_m = min(d.travel_per_sample_m for d in self.data)
         self.sample_interval_s = max(1.0 / d.sample_rate_hz for d in self.data)
+        #: Parameters (per unit mass where force-scaled) the fit starts from: the states'
+        #: relaxation limits are relative to them (None: no such limits).
+        self.start_theta: np.ndarray | None = None
         self._equilibria: dict[tuple, tuple[float, np.ndarray]] = {}
         self._equilibrium_jacobians: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
 
@@ -258,7 +261,7 @@ class GreyBoxProblem:
         # the force-scaled parameters are fitted per unit mass: their SI bounds hold for
         # every mass in range
         lower, upper = self.model.resolved_bounds(self.travel_per_sample_m,
-                                                  self.sample_interval_s,
+                                                  self.sample_interval_s, self.start_theta,
                                                   per_unit_mass_kg=self.mass_bounds_kg)
         lo = [lower[self.free_model]]
         hi = [upper[self.free_model]]

@@ -80,6 +80,24 @@ def test_perfect_data_two_sessions_give_absolute_values_and_mass() -> None:
     assert res.body_mass_kg == pytest.approx(380.0, rel=1e-6)
 
 
+def test_a_soft_top_mount_is_fitted_per_unit_mass() -> None:
+    """A top mount softer than its SI lower bound per kg (6e4 N/m on 380 kg: 158 N/m per
+    kg against 1e3 N/m) is recovered (the bound holds per unit mass over the mass range;
+    before, the fit was held at 1e3 N/m per kg and ended at the mass's bound)."""
+    eff = [make_effect("series_top_mount", suspension_damping_ns_per_m=1800.0,
+                       mount_stiffness_n_per_m=6e4)]
+    before, after = simulate_pair(CAR, added_mass_kg=60.0, seed=5, duration_s=30.0,
+                                  effects=eff)
+    model, values = model_from_sim(CAR, eff)
+    data = [GreyBoxData.from_drive(d, truth=True) for d in (before, after)]
+    start = {k: v * 1.3 for k, v in values.items()} | {"body_mass_kg": 330.0}
+    res = fit_greybox(data, model, initial=start, mass_bounds_kg=(150.0, 1500.0))
+    got = {p.key: p.value for p in res.parameters}
+    assert got["series_top_mount.mount_stiffness_n_per_m"] == pytest.approx(6e4, rel=0.02)
+    assert got["series_top_mount.suspension_damping_ns_per_m"] == pytest.approx(1800.0, rel=0.02)
+    assert res.body_mass_kg == pytest.approx(380.0, rel=0.02)
+
+
 def test_sensitivities_are_the_derivative_of_the_simulation() -> None:
     """Jacobian from the sensitivity equations == central differences of the residuals
     (nonlinear model, band-limited data, two sessions with added mass)."""
