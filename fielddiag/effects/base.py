@@ -550,8 +550,8 @@ class Effect:
         values : sequence of float
             Parameter values in kernel order (where the fit starts).
         shortest_time_s : float
-            Shortest relaxation time the data resolve [s]
-            (:data:`fielddiag.effects.model.RESOLVED_FRACTION` of the sample interval).
+            Shortest relaxation time kept [s] (the sample interval over
+            :data:`fielddiag.effects.model.MAX_RELAXATION_STEPS`).
 
         Returns
         -------

@@ -12,7 +12,6 @@ C2/M2...) and two sessions with a known added mass identify absolute values.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
@@ -48,14 +47,18 @@ STATE_LIMIT = 1e3
 #: grow without bound (1e120 was met): the derivatives through the states are then taken
 #: by forward differences of the whole run instead (finite steps, as before them).
 SENSITIVITY_GROWTH_LIMIT = 1e6
-#: What sampled data resolve, as a fraction of the sample interval: a travel an internal
-#: state changes over (a yield travel, :attr:`~fielddiag.effects.base.ParamSpec.resolved_travel`)
-#: is kept at or above this fraction of the suspension's rms travel per sample, and a
-#: state's relaxation time (a top mount's c / k_m, :meth:`~fielddiag.effects.base.Effect.resolved_upper`)
-#: at or above this fraction of the sample interval. Shorter, the state settles within a
-#: sample: the data see its limit (friction, a rigid mount) and cannot tell the two apart,
-#: while the state's RK4 substeps grow without bound (a fit wandering there took minutes).
+#: A travel an internal state changes over (a yield travel,
+#: :attr:`~fielddiag.effects.base.ParamSpec.resolved_travel`) is kept at or above this
+#: fraction of the suspension's rms travel per sample. Shorter, the loop closes within a
+#: sample: the data see its limit (friction) and cannot tell the two apart, while the
+#: state's RK4 substeps grow without bound (a fit wandering there took minutes).
 RESOLVED_FRACTION = 0.5
+#: A state's relaxation time (a top mount's c / k_m,
+#: :meth:`~fielddiag.effects.base.Effect.resolved_upper`) is kept at or above the sample
+#: interval over this many: at most this many RK4 substeps for it. (Unlike a yield
+#: travel, a relaxation far shorter than a sample still shows, as a delay: a 0.6 ms mount
+#: sampled at 100 Hz. A fit that wandered to a rigid mount took 180 s.)
+MAX_RELAXATION_STEPS = 16
 
 
 def _force_many(r, rd, x2, theta, consts):  # pragma: no cover - numba template
@@ -475,7 +478,8 @@ class ForceModel:
                         theta: np.ndarray | None = None,
                         per_unit_mass_kg: tuple[float, float] | None = None
                         ) -> tuple[np.ndarray, np.ndarray]:
-        """Parameter bounds narrowed to what the data resolve (:data:`RESOLVED_FRACTION`).
+        """Parameter bounds narrowed to what the data resolve (:data:`RESOLVED_FRACTION`,
+        :data:`MAX_RELAXATION_STEPS`).
 
         Parameters
         ----------
@@ -511,7 +515,7 @@ class ForceModel:
             p0 = 0
             for t in self.terms:
                 p1 = p0 + len(t.params)
-                hi = t.resolved_upper(theta[p0:p1], RESOLVED_FRACTION * sample_interval_s)
+                hi = t.resolved_upper(theta[p0:p1], sample_interval_s / MAX_RELAXATION_STEPS)
                 if hi is not None:
                     upper[p0:p1] = np.maximum(np.minimum(upper[p0:p1], hi), lower[p0:p1])
                 p0 = p1
@@ -726,9 +730,10 @@ class ForceModel:
         for t in self.terms:
             p1 = p0 + len(t.params)
             if t.n_states:
-                q = float(t.speed_bounds(np.abs(theta[p0:p1]))[2])
-                rate = np.maximum(rate, np.maximum(
-                    q * speed / RATE_BOUND_MPS, float(t.relaxation_rate_per_s(np.abs(theta[p0:p1])))))
+                own = np.abs(theta[p0:p1])
+                q = float(t.speed_bounds(own)[2])
+                rate = np.maximum(rate, np.maximum(q * speed / RATE_BOUND_MPS,
+                                                   float(t.relaxation_rate_per_s(own))))
             p0 = p1
         rate = np.where(np.isfinite(rate), np.minimum(rate, MAX_STATE_RATE_PER_S),
                         MAX_STATE_RATE_PER_S)

@@ -155,7 +155,7 @@ def test_substeps_follow_the_paths_rate_and_the_resolution_bounds() -> None:
     """path_substeps: few RK4 steps where the suspension is slow, as many as
     state_substeps where it is fastest, and the force agrees with a run at the fastest
     count everywhere (to 1e-3 of its range); resolved_bounds keeps a yield travel at half
-    the travel per sample and a top mount's c / k_m at half a sample, and turns SI bounds
+    the travel per sample and a top mount's c / k_m at 1/16 of a sample, and turns SI bounds
     of force-scaled parameters into per-unit-mass bounds over a mass range."""
     fs = 100.0
     t = np.arange(0.0, 20.0, 1 / fs)
@@ -182,7 +182,8 @@ def test_substeps_follow_the_paths_rate_and_the_resolution_bounds() -> None:
     assert lo[bw.index("bouc_wen.yield_displacement_m")] == pytest.approx(0.5e-3)
     tm = fx.ForceModel([SeriesTopMount(1800.0, 1.5e5)])
     _, hi = tm.resolved_bounds(travel, step, tm.values_of())
-    assert hi[tm.index("series_top_mount.mount_stiffness_n_per_m")] == pytest.approx(1800.0 / 0.005)
+    assert hi[tm.index("series_top_mount.mount_stiffness_n_per_m")] == pytest.approx(
+        1800.0 / (step / fx.model.MAX_RELAXATION_STEPS))
     assert tm.resolved_bounds(travel, step)[1][1] == math.inf  # no start: no limit
     lo_u, _ = tm.resolved_bounds(travel, step, per_unit_mass_kg=(100.0, 1000.0))
     assert lo_u[tm.index("series_top_mount.mount_stiffness_n_per_m")] == pytest.approx(1.0)
