@@ -826,9 +826,11 @@ class ForceModel:
             f, ds, dp = self.force(r, rdot, x2, theta)
             return f, ds, dp, np.zeros((r.size, 0))
         h = 1.0 / float(sample_rate_hz)
-        nsub = self.path_substeps(theta, rdot, h)
-        if not follow_rate:
-            nsub = np.full(nsub.size, nsub.max(), dtype=np.int64)
+        if follow_rate:
+            nsub = self.path_substeps(theta, rdot, h)
+        else:
+            fastest = float(np.max(np.abs(rdot))) if r.size else 0.0
+            nsub = np.full(max(r.size, 1), self.state_substeps(theta, fastest, h), dtype=np.int64)
         path = self.compile(__name__, "_force_path_z", error_model="numpy")._force_path_z
 
         def run(th: np.ndarray) -> tuple[np.ndarray, ...]:

@@ -95,14 +95,16 @@ class SeriesTopMount(Effect):
 
     def resolved_upper(self, values: Sequence[float], shortest_time_s: float) -> np.ndarray:
         """The mount stiffness at which its time constant ``c / k_m`` is ``shortest_time_s``
-        (a stiffer mount settles within a sample: the data see a rigid one).
+        at the starting damping ``c`` (a stiffer mount would take more RK4 substeps than
+        :data:`~fielddiag.effects.model.MAX_RELAXATION_STEPS` per sample; its delay is
+        then far below what the data tell from zero).
 
         Parameters
         ----------
         values : sequence of float
             Damping [N s/m] and mount stiffness [N/m] where the fit starts.
         shortest_time_s : float
-            Shortest relaxation time the data resolve [s].
+            Shortest relaxation time kept [s].
 
         Returns
         -------
