@@ -337,7 +337,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, help="first seed (use a fresh one)")
     ap.add_argument("--n", type=int, help="number of cases")
     ap.add_argument("--tables", type=Path, default=None,
-                    help="reprint the tables from a JSON saved with --out, and stop")
+                    help="reprint the tables from a JSON saved with --out (scored by the "
+                         "rules as they read now), and stop")
     ap.add_argument("--jobs", type=int, default=2, help="worker processes (default 2)")
     ap.add_argument("--out", type=Path, default=None, help="JSON file for the per-case rows")
     ap.add_argument("--duration", type=float, default=None,
@@ -348,7 +349,12 @@ def main(argv: list[str] | None = None) -> int:
     families = tuple(args.families.split(",")) if args.families else None
     if args.tables is not None:
         saved = json.loads(args.tables.read_text())
-        rows = saved["rows"]
+        library = tuple(saved.get("library") or ())
+        if not library:
+            from fielddiag.effects import diagnosis_effects
+            library = diagnosis_effects()
+        # the scoring rules as they read now (a row keeps what the diagnosis said)
+        rows = [rs.rescore(r, library) if "error" not in r else r for r in saved["rows"]]
         print(f"Rows of seed {saved['seed']}, N = {saved['n']} ({len(rows)} done; fielddiag "
               f"{saved['fielddiag_version']} at {saved['git_head']}):")
         print(saved["method"])

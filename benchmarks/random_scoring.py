@@ -92,22 +92,32 @@ def ride_height_reported(out: dict[str, Any]) -> str | None:
     return None
 
 
-#: Effects that model the same physics in two forms: naming either is naming it.
-SAME_PHYSICS = {"hysteretic_spring": "hysteresis", "bouc_wen": "hysteresis",
-                "dahl_friction": "hysteresis", "buildup_hysteresis": "hysteresis"}
+#: Effects that model the same physics in another form: naming any of the physics an effect
+#: stands for is naming it. Dahl friction is dry friction with pre-sliding hysteresis (Dahl
+#: 1968, "a solid friction model"): at a small pre-sliding travel it is Coulomb friction,
+#: at a large one a hysteretic spring, so either names it (as friction is the right first
+#: name for the real MR damper's yield plus pre-yield hysteresis). Build-up hysteresis is
+#: the same friction with a force building up with travel: the same two.
+SAME_PHYSICS: dict[str, frozenset[str]] = {
+    "hysteretic_spring": frozenset({"hysteresis"}),
+    "bouc_wen": frozenset({"hysteresis"}),
+    "dahl_friction": frozenset({"hysteresis", "coulomb_friction"}),
+    "buildup_hysteresis": frozenset({"hysteresis", "coulomb_friction"}),
+}
 
 
-def physics_of(name: str) -> str:
-    """The physics an effect name stands for (hysteresis for Dahl and Bouc-Wen)."""
-    return SAME_PHYSICS.get(name, name)
+def physics_of(name: str) -> frozenset[str]:
+    """The physics an effect name stands for (hysteresis for Bouc-Wen; dry friction or
+    hysteresis for Dahl friction)."""
+    return SAME_PHYSICS.get(name, frozenset({name}))
 
 
 def expected_names(effects: list[tuple[str, dict]], library: tuple[str, ...]) -> list[str]:
     """What a correct diagnosis names for each true effect: the effect if the diagnosis
     tries it, or one of the same physics (Dahl friction, which the car library does not
-    try, is hysteresis, which it does), else ``unexplained``."""
-    tried = {physics_of(n) for n in library}
-    return [n if n in library or physics_of(n) in tried else UNEXPLAINED for n, _ in effects]
+    try, is dry friction or hysteresis, which it does), else ``unexplained``."""
+    tried = set().union(*map(physics_of, library)) if library else set()
+    return [n if n in library or physics_of(n) & tried else UNEXPLAINED for n, _ in effects]
 
 
 def right_first(named: list[str], effects: list[tuple[str, dict]],
@@ -117,10 +127,27 @@ def right_first(named: list[str], effects: list[tuple[str, dict]],
     form: describing its shape without a name is not wrong)."""
     if not named:
         return False
-    ok = {physics_of(e) for e in expected_names(effects, library)}
+    ok = set().union(*(physics_of(e) for e in expected_names(effects, library)))
     if any(n not in library for n, _ in effects):
         ok.add(UNEXPLAINED)
-    return physics_of(named[0]) in ok
+    return bool(physics_of(named[0]) & ok)
+
+
+def all_named(named: list[str], effects: list[tuple[str, dict]],
+              library: tuple[str, ...]) -> bool:
+    """Every true effect's physics is among the suspension findings."""
+    got = set().union(*map(physics_of, named)) if named else set()
+    return all(physics_of(e) & got for e in expected_names(effects, library))
+
+
+def rescore(row: dict[str, Any], library: tuple[str, ...]) -> dict[str, Any]:
+    """A saved row with ``top1`` and ``all_named`` recomputed by the rules above (rows
+    saved before a rule changed are reprinted as it now reads)."""
+    effects = [(e["effect"], e["parameters"]) for e in row["case"]["effects"]]
+    if not effects or "named" not in row:
+        return row
+    return {**row, "top1": right_first(row["named"], effects, library),
+            "all_named": all_named(row["named"], effects, library)}
 
 
 def position_dependent(name: str, params: dict[str, float]) -> bool:
@@ -232,8 +259,7 @@ def score_case(case: Any, out: dict[str, Any], floor_nrmse: float | None,
         "named": named,
         "detected": bool(found),
         "top1": top1,
-        "all_named": ({physics_of(e) for e in expected} <= {physics_of(n) for n in named}
-                      if effects else None),
+        "all_named": all_named(named, effects, library) if effects else None,
         "false_alarm": bool(found) if not effects else None,
         "param_errors": errs,
         "max_param_error": max((e["rel_error"] for e in errs), default=None),

@@ -238,11 +238,20 @@ def test_same_physics_outside_the_library_is_named_or_unexplained() -> None:
     lib = ("coulomb_friction", "hysteretic_spring", "bouc_wen")
     dahl = [("dahl_friction", {"friction_force_n": 50.0})]
     travel = [("travel_dependent_damping", {"extra_damping_ns_per_m": 500.0})]
-    # Dahl friction is hysteresis, which the library tries as a hysteretic spring
+    # Dahl friction is dry friction with pre-sliding hysteresis: either names it
     assert rs.expected_names(dahl, lib) == ["dahl_friction"]
     assert rs.right_first(["hysteretic_spring"], dahl, lib)
+    assert rs.right_first(["coulomb_friction", "hysteretic_spring"], dahl, lib)
     assert rs.right_first(["unexplained"], dahl, lib)  # its shape without a name: not wrong
-    assert not rs.right_first(["coulomb_friction"], dahl, lib)
+    assert not rs.right_first(["cubic_stiffness"], dahl, lib)
+    assert rs.all_named(["coulomb_friction"], dahl, lib)
+    assert not rs.all_named(["cubic_stiffness"], dahl, lib)
+    # without friction or hysteresis in the library, Dahl friction is 'unexplained'
+    assert rs.expected_names(dahl, ("cubic_stiffness",)) == ["unexplained"]
+    # a saved row is reprinted by the rule as it reads now
+    row = {"case": {"effects": [{"effect": "dahl_friction", "parameters": {}}]},
+           "named": ["coulomb_friction"], "top1": False, "all_named": False}
+    assert rs.rescore(row, lib)["top1"] and rs.rescore(row, lib)["all_named"]
     # no form of a travel-dependent damper in the library: only 'unexplained' is right
     assert rs.expected_names(travel, lib) == ["unexplained"]
     assert rs.right_first(["unexplained"], travel, lib)
