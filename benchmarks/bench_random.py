@@ -163,7 +163,7 @@ def confusion(rows: list[dict]) -> list[str]:
 def nuisance_table(rows: list[dict]) -> list[str]:
     out = ["Data problems (reported as a warning or a finding):",
            f"{'kind':<14} {'present':>7} {'reported':>14} {'size >= threshold: reported':>30}"
-           f" {'absent: invented':>18}"]
+           f" {'absent: invented':>18} {'told tied with physics (present / absent)':>42}"]
     for kind in rs.DATA_PROBLEM_NAMES:
         pres = [r for r in rows if r["nuisances"][kind]["present"]]
         must = [r for r in pres if r["nuisances"][kind]["must_report"]]
@@ -175,8 +175,15 @@ def nuisance_table(rows: list[dict]) -> list[str]:
             f"{kind:<14} {len(pres):>7} "
             f"{_pct(sum(r['nuisances'][kind]['reported'] for r in pres), len(pres)):>14} "
             f"{_pct(sum(r['nuisances'][kind]['reported'] for r in must), len(must)) + label:>30} "
-            f"{_pct(sum(r['nuisances'][kind]['reported'] for r in absent), len(absent)):>18}")
+            f"{_pct(sum(r['nuisances'][kind]['reported'] for r in absent), len(absent)):>18} "
+            f"{_tied(pres, kind):>20} / {_tied(absent, kind):<20}")
     return out
+
+
+def _tied(rows: list[dict], kind: str) -> str:
+    """Rows that tell ``kind`` as tied with physics that looks like it (rows saved before
+    the scoring counted ties count none)."""
+    return str(sum(bool(r["nuisances"][kind].get("undecided")) for r in rows))
 
 
 def ride_height_table(rows: list[dict]) -> list[str]:

@@ -56,6 +56,19 @@ def data_problems_reported(out: dict[str, Any]) -> set[str]:
     return {k for k in map(data_problem_kind, names) if k is not None}
 
 
+#: Words by which a ``data_problem_or_physics`` note (a data problem and physics that
+#: predict alike) names each data problem.
+_UNDECIDED_WORDS = {"gain_change": "gain", "time_offset": "time offset"}
+
+
+def data_problems_undecided(out: dict[str, Any]) -> set[str]:
+    """Canonical data-problem kinds the diagnosis tells as tied with physics that looks
+    like them (neither reported nor denied: "these data cannot tell the two apart")."""
+    notes = [w.get("message", "") for w in out.get("warnings", [])
+             if w.get("kind") == "data_problem_or_physics"]
+    return {k for k, word in _UNDECIDED_WORDS.items() if any(word in n for n in notes)}
+
+
 def suspension_findings(out: dict[str, Any]) -> list[dict[str, Any]]:
     """Findings about the suspension (data problems left out), in the diagnosis's order."""
     return [f for f in out.get("findings", []) if data_problem_kind(f.get("effect", "")) is None]
@@ -144,6 +157,10 @@ def rescore(row: dict[str, Any], library: tuple[str, ...]) -> dict[str, Any]:
     """A saved row with ``top1`` and ``all_named`` recomputed by the rules above (rows
     saved before a rule changed are reprinted as it now reads)."""
     effects = [(e["effect"], e["parameters"]) for e in row["case"]["effects"]]
+    row = dict(row)
+    if "warnings" in row and "nuisances" in row:
+        tied = data_problems_undecided(row)
+        row["nuisances"] = {k: {**n, "undecided": k in tied} for k, n in row["nuisances"].items()}
     if not effects or "named" not in row:
         return row
     return {**row, "top1": right_first(row["named"], effects, library),
@@ -222,6 +239,7 @@ def score_case(case: Any, out: dict[str, Any], floor_nrmse: float | None,
     ratio = None if floor_nrmse is None or lin is None or floor_nrmse <= 0 else lin / floor_nrmse
     errs = param_errors(effects, found)
     reported = data_problems_reported(out)
+    undecided = data_problems_undecided(out)
     truth_kinds = {n["kind"]: n for n in case.nuisances}
     nuis = {}
     for kind in DATA_PROBLEM_NAMES:
@@ -231,6 +249,7 @@ def score_case(case: Any, out: dict[str, Any], floor_nrmse: float | None,
             "value": None if n is None else n["value"],
             "must_report": n is not None and abs(n["value"]) >= REPORT_FROM.get(kind, 0.0),
             "reported": kind in reported,
+            "undecided": kind in undecided,
         }
     posdep = [n for n, p in effects if position_dependent(n, p)]
     top1 = right_first(named, effects, library) if effects else None

@@ -230,7 +230,7 @@ def test_tables_from_rows() -> None:
     assert line.split()[1:6] == ["1", "-", "-", "-", "1/1"]  # ratio 5: the >4x bin
     # a gain change reported where none was drawn is counted as invented
     gain = next(ln for ln in text.splitlines() if ln.startswith("gain_change"))
-    assert gain.endswith("1/3 (33 %)")
+    assert "1/3 (33 %)" in gain and gain.split()[-3:] == ["0", "/", "0"]  # no tie told
     assert "cases that raised: 1" in text and "seed 1 (x): E: e" in text
 
 
@@ -257,3 +257,16 @@ def test_same_physics_outside_the_library_is_named_or_unexplained() -> None:
     assert rs.right_first(["unexplained"], travel, lib)
     assert not rs.right_first(["bouc_wen"], travel, lib)
     assert not rs.right_first([], travel, lib)
+
+
+def test_a_tie_with_physics_is_told_neither_reported_nor_invented() -> None:
+    case = rc.draw_case(LINEAR_SEED, families=SEED_FAMILIES)
+    tied = {"verdict": "adequate", "baseline": {"nrmse_validation": 0.1}, "findings": [],
+            "warnings": [{"kind": "data_problem_or_physics",
+                          "message": "a time offset between the wheel and body channels "
+                                     "(+0.34 +- 0.04 ms) and a series top mount explain ..."}]}
+    row = rs.score_case(case, tied, None, ("series_top_mount",))
+    assert row["nuisances"]["time_offset"] == {"present": False, "value": None,
+                                               "must_report": False, "reported": False,
+                                               "undecided": True}
+    assert not row["nuisances"]["gain_change"]["undecided"]

@@ -461,6 +461,9 @@ class Diagnosis:
     ride_height: dict | None = None  # passive sag vs restored, when an effect acts on position
     linear_inadequate: str | None = None  # words when the linear model is hopeless
     loops: list[dict] = field(default_factory=list)  # restoring force on held-out data
+    # data problems that tie with physics that looks like them: told in one
+    # ``data_problem_or_physics`` warning, not as a bare data problem
+    undecided: frozenset[str] = frozenset()
 
     @property
     def verdict(self) -> str:
@@ -588,7 +591,7 @@ class Diagnosis:
             )
         # drives that do not behave like one corner with the mass added: a competing
         # hypothesis that a finding (a progressive spring, friction...) explains
-        problems = self.data_problems()
+        problems = [w for w in self.data_problems() if w.kind not in self.undecided]
         warnings = [w.to_dict() for w in [*self.warnings, *problems]
                     if not (w.kind == "pair_inconsistent" and (findings or problems))]
         aug = base if chosen is base else chosen
@@ -630,7 +633,8 @@ class Diagnosis:
             "holdout": "last 30 % of every drive",
             "ride_height": self.ride_height,
             "data_problems": [
-                {"kind": h.kind, "value": h.value, "std": h.std}
+                {"kind": h.kind, "value": h.value, "std": h.std,
+                 "undecided": h.kind in self.undecided}
                 for h in (self.chosen.data.chain if self.chosen.data else [])
             ],
             "linear_model_adequate": self.linear_inadequate is None,
@@ -1349,6 +1353,19 @@ def diagnose_drives(
             if both is not None:
                 both.candidate.extra["moved"] = lin.candidate.extra["moved"]
                 fits.append(both)
+            if hyp.prior is None:
+                # the physics that looks like the data problem competes on top of the
+                # chosen physics too (a lag left by a hysteresis model is a time offset
+                # or a top mount as much as the lag of a linear car is)
+                for e in effects:
+                    if hyp.kind not in EFFECTS[e].data_twins or e in physics_fit.effects:
+                        continue
+                    combo = tuple(sorted(physics_fit.effects + (e,), key=list(effects).index))
+                    if any(f.effects == combo and f.data is None for f in fits):
+                        continue
+                    twin = grey(combo, _with_ride_height(prepared, physics_fit.restored))
+                    if twin is not None:
+                        fits.append(twin)
         return lin
 
     # data problems compete with the physics: each is corrected and the models refitted
@@ -1391,10 +1408,15 @@ def diagnose_drives(
     chosen = next(f for f in fits if f.candidate is sel.chosen)
     chosen = _decisive_data_problem(chosen, fits)
     twin = _physics_twin(chosen, fits)
+    undecided: frozenset[str] = frozenset()
     if twin is not None:
         # a data problem and physics that looks like it predict alike: the better one is
         # kept and the user is told both
-        chosen, note = twin
+        chosen, note, kind = twin
+        if chosen.data is not None:
+            # the data problem is kept, but not told as one that no suspension produces
+            undecided = frozenset({kind})
+            note += chosen.candidate.extra.get("moved", "")
         say("  " + note)
         warnings.append(data_checks.DataWarning("data_problem_or_physics", note))
     if chosen.physics and chosen.physics != physics_fit.physics and chosen.data is not None:
@@ -1406,7 +1428,14 @@ def diagnose_drives(
                  if chosen is not base and any(t.size for t in clipped.values()) else None)
     if clip_note is not None:
         say("  " + clip_note[1])
-        chosen = chosen if clip_note[0] else base
+        # clipped peaks can fake physics and a late channel, not a gain change: that is
+        # read from each drive's gravity reading too, which lost peaks leave alone
+        kept = next((f for f in fits if not f.physics and f.data is not None
+                     and f.data.prior is None and f.data.kind == "sensor_gain_changed"
+                     and f.data.evidence
+                     and any(h.kind == f.data.kind for h in chosen.data.chain)), base) \
+            if chosen.data is not None else base
+        chosen = chosen if clip_note[0] else kept
         warnings.append(data_checks.DataWarning("clipping_explains", clip_note[1]))
     ride = None
     if mode == "pair" and chosen.physics and _acts_on_position(chosen):
@@ -1470,6 +1499,7 @@ def diagnose_drives(
         residual_psd=psd,
         ride_height=ride,
         linear_inadequate=hopeless,
+        undecided=undecided,
     )
 
 
@@ -1513,13 +1543,13 @@ def _decisive_data_problem(chosen: _Fit, fits: Sequence[_Fit]) -> _Fit:
 TWIN_T = 2.0
 
 
-def _physics_twin(chosen: _Fit, fits: Sequence[_Fit]) -> tuple[_Fit, str] | None:
+def _physics_twin(chosen: _Fit, fits: Sequence[_Fit]) -> tuple[_Fit, str, str] | None:
     """A data problem and physics that looks like it
     (:attr:`~fielddiag.effects.base.Effect.data_twins`) that predict the held-out data
     within :data:`TWIN_T` standard errors of each other: the better of the two (which the
     selection chose, unless it chose the data problem over physics that predicts better)
-    and words saying both explain the recording. None when one is clearly better or
-    nothing looks like the chosen model."""
+    words saying both explain the recording, and the data problem's kind. None when one is
+    clearly better or nothing looks like the chosen model."""
     def looks_like(f: _Fit, g: _Fit) -> bool:
         """``f`` adds to ``g``'s physics an effect that looks like ``g``'s data problem."""
         return (g.data is not None and g.data.prior is None and f.data is None
@@ -1550,7 +1580,7 @@ def _physics_twin(chosen: _Fit, fits: Sequence[_Fit]) -> tuple[_Fit, str] | None
         note = told + (f"The findings assume the {names}; check the recording (both "
                        "channels on one DAQ clock with the same filter) to rule the data "
                        "problem out")
-    return pick, note
+    return pick, note, data.data.kind
 
 
 def _data_size(hyp: DataHypothesis) -> str:

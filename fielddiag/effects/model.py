@@ -58,7 +58,7 @@ RESOLVED_FRACTION = 0.5
 #: interval over this many: at most this many RK4 substeps for it. (Unlike a yield
 #: travel, a relaxation far shorter than a sample still shows, as a delay: a 0.6 ms mount
 #: sampled at 100 Hz. A fit that wandered to a rigid mount took 180 s.)
-MAX_RELAXATION_STEPS = 16
+MAX_RELAXATION_STEPS = 32
 
 
 def _force_many(r, rd, x2, theta, consts):  # pragma: no cover - numba template
