@@ -1363,7 +1363,20 @@ def diagnose_drives(
                     combo = tuple(sorted(physics_fit.effects + (e,), key=list(effects).index))
                     if any(f.effects == combo and f.data is None for f in fits):
                         continue
-                    twin = grey(combo, _with_ride_height(prepared, physics_fit.restored))
+                    if len(combo) == 2 and combo in ee_fits:
+                        _, share = _pair_screen(combo, ee_fits, ee_base)
+                        if share < STATEFUL_PAIR_MIN_SHARE:
+                            # its signature adds nothing to the physics' (the lag is not
+                            # a mount's): the full fit would not compete
+                            say(f"  {' + '.join(combo)}: its signature adds "
+                                f"{100 * share:.1f} % to {physics_fit.effects[0]}'s; not "
+                                "fitted to compete with the time offset")
+                            continue
+                    start = _initial_from(physics_fit)
+                    near = get_effect(e)().twin_start(hyp.kind, hyp.value, start)
+                    start.update({f"{e}.{k}": v for k, v in near.items()})
+                    twin = grey(combo, _with_ride_height(prepared, physics_fit.restored),
+                                start if near else None)
                     if twin is not None:
                         fits.append(twin)
         return lin

@@ -577,6 +577,28 @@ class Effect:
         """
         return {}
 
+    def twin_start(self, kind: str, value: float, start: Mapping[str, float]
+                   ) -> dict[str, float]:
+        """Start values that make the effect look like the data problem ``kind`` of size
+        ``value`` (one of :attr:`data_twins`), so that a fit of it competing with that data
+        problem starts where the two predict alike.
+
+        Parameters
+        ----------
+        kind : str
+            The data problem (``channel_time_offset``).
+        value : float
+            Its size (a delay [s]).
+        start : mapping
+            Values already known by model key.
+
+        Returns
+        -------
+        dict
+            Absolute start value by parameter name (empty: no such start, the default).
+        """
+        return {}
+
     def unphysical(self, values: Mapping[str, float], std: Mapping[str, float]) -> bool:
         """True if the fitted effect as a whole is not physical (beyond single parameters).
 

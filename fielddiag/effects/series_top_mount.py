@@ -136,6 +136,28 @@ class SeriesTopMount(Effect):
             out["mount_stiffness_n_per_m"] = 8.0 * k
         return out
 
+    def twin_start(self, kind, value, start):
+        """A mount whose relaxation time ``c / k_m`` is the channel delay ``value`` [s]: to
+        the body's response below the mount's corner the two are the same lag.
+
+        Parameters
+        ----------
+        kind : str
+            ``channel_time_offset`` (anything else: no start).
+        value : float
+            The body channel's delay [s].
+        start : mapping
+            Values already known by model key (the linear damping).
+
+        Returns
+        -------
+        dict
+        """
+        c = start.get("linear_damper.suspension_damping_ns_per_m")
+        if kind != "channel_time_offset" or c is None or not value:
+            return {}
+        return {"suspension_damping_ns_per_m": c, "mount_stiffness_n_per_m": c / abs(value)}
+
     def explain(self, params: Mapping[str, float], per: str = "", hidden: str = "") -> str:
         """A sentence a technician can act on: the mount's stiffness and where damping fades.
 
