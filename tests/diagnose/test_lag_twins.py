@@ -53,6 +53,8 @@ def test_a_stiff_top_mount_is_not_taken_for_a_late_channel():
     note = next(w["message"] for w in out["warnings"] if w["kind"] == "data_problem_or_physics")
     assert "cannot tell the two apart" in note and "series top mount" in note
     assert "time offset" in note
+    # told once, as a tie: not also as a skew "that no suspension produces"
+    assert "channel_time_offset" not in _kinds(out)
     named = [f["effect"] for f in out["findings"]]
     assert named in ([], ["series_top_mount"]), named
     if named:

@@ -190,6 +190,17 @@ def test_substeps_follow_the_paths_rate_and_the_resolution_bounds() -> None:
     assert lo_u[tm.index("series_top_mount.mount_stiffness_n_per_m")] == pytest.approx(1.0)
 
 
+def test_a_top_mount_starts_where_it_lags_like_a_late_channel() -> None:
+    # c / k_m = the delay: below the mount's corner its lag is the late channel's
+    start = {"linear_damper.suspension_damping_ns_per_m": 2000.0}
+    got = SeriesTopMount().twin_start("channel_time_offset", -0.8e-3, start)
+    assert got == {"suspension_damping_ns_per_m": 2000.0,
+                   "mount_stiffness_n_per_m": pytest.approx(2000.0 / 0.8e-3)}
+    assert SeriesTopMount().twin_start("sensor_gain_changed", 0.02, start) == {}
+    assert SeriesTopMount().twin_start("channel_time_offset", 1e-3, {}) == {}
+    assert fx.CoulombFriction().twin_start("channel_time_offset", 1e-3, start) == {}
+
+
 # ------------------------------------------------------------------ derivatives
 
 MEMORYLESS = [c for c in EFFECTS.values() if c.n_states == 0]
