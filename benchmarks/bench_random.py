@@ -405,6 +405,8 @@ def main(argv: list[str] | None = None) -> int:
         for i, s in enumerate(seeds, 1):
             done(i, run_case(s, args.duration, families))
     else:
+        # one diagnosis per worker process: each fits on one thread (fielddiag.threads)
+        os.environ.setdefault("FIELDDIAG_THREADS", "1")
         with ProcessPoolExecutor(max_workers=args.jobs) as pool:
             futs = [pool.submit(run_case, s, args.duration, families) for s in seeds]
             for i, fut in enumerate(as_completed(futs), 1):

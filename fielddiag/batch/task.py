@@ -206,7 +206,9 @@ def _diagnose(job: PairJob) -> dict[str, Any]:
         return diagnose_vehicle(*vehicle, added_mass_kg=job.added_mass_kg).to_dict()
     from fielddiag.diagnose.engine import diagnose_sessions
 
-    return diagnose_sessions([job.before, job.after], added_mass_kg=job.added_mass_kg).to_dict()
+    # the cluster runs one job per worker process and core: the fits stay on one thread
+    return diagnose_sessions([job.before, job.after], added_mass_kg=job.added_mass_kg,
+                             workers=1).to_dict()
 
 
 SUMMARISERS = {"identify": summarise_identify, "diagnose": summarise_diagnose}

@@ -79,6 +79,7 @@ from fielddiag.identify.greybox import (
     fit_greybox,
     validation_runs,
 )
+from fielddiag.threads import map_threads, thread_budget
 
 #: The effects the diagnosis tries by default when this module was imported (the
 #: library's ``diagnosable`` effects; names are part of the JSON interface).
@@ -287,6 +288,12 @@ def _states(p: GreyBoxData) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndar
     r = p.body_disp_m - p.wheel_disp_m
     rdot = p.body_vel_mps - p.wheel_vel_mps
     return r, rdot, p.body_disp_m, p.body_accel_mps2
+
+
+def _cost(combo: tuple[str, ...]) -> float:
+    """A guess of a fit's relative run time, to start the dearest first: effects with
+    internal states integrate them (and their sensitivities) on substeps."""
+    return 1.0 + sum(4.0 * EFFECTS[e].n_states for e in combo)
 
 
 def _static_offset(base_vals: dict[str, float], added_mass_kg: float) -> float:
@@ -1148,6 +1155,7 @@ def diagnose_drives(
     analysis_rate_hz: float = 125.0,
     max_pair_fits: int = 3,
     progress: Callable[[str], None] | None = None,
+    workers: int | None = None,
 ) -> Diagnosis:
     """Diagnose one drive (per unit mass) or a before/after pair (absolute).
 
@@ -1169,6 +1177,11 @@ def diagnose_drives(
         three) singles that predict held-out data best, up to this many.
     progress : callable or None
         Called with a line of text at each step.
+    workers : int or None
+        Threads for the fits that do not depend on each other (the effects' screenings
+        and fits, the pairs, the fits that compete with a data problem); None:
+        ``$FIELDDIAG_THREADS``, else one per usable CPU. The result does not depend on
+        it. Give 1 where diagnoses already run one per core.
 
     Returns
     -------
@@ -1180,6 +1193,20 @@ def diagnose_drives(
     FieldDiagError
         Not one or two drives, or two drives with the same added mass.
     """
+    with thread_budget(workers):
+        return _diagnose(drives, effects, band_hz, holdout_fraction, analysis_rate_hz,
+                         max_pair_fits, progress)
+
+
+def _diagnose(
+    drives: Sequence[Drive],
+    effects: Sequence[str] | None,
+    band_hz: tuple[float, float] | None,
+    holdout_fraction: float,
+    analysis_rate_hz: float,
+    max_pair_fits: int,
+    progress: Callable[[str], None] | None,
+) -> Diagnosis:
     say = progress or (lambda _msg: None)
     drives = list(drives)
     effects = diagnosis_effects() if effects is None else tuple(effects)
@@ -1222,24 +1249,29 @@ def diagnose_drives(
     ee_fits: dict[tuple[str, ...], _EquationErrorFit] = {}
     mse_b = float(np.mean(ee_base.residual_validation**2))
 
-    def screen(combo: tuple[str, ...]) -> None:
-        """The equation-error fit of ``combo``: its signature and the grey fit's start.
-        Every single effect is screened; a pair only when it is fitted (the library's
-        pairs grow as its square)."""
+    def screen_one(combo: tuple[str, ...]) -> tuple[_EquationErrorFit, dict] | None:
         start = dict(ee_base.values)
         for e in combo:
             start.update(ee_fits[(e,)].values if (e,) in ee_fits else {})
         try:
             ee = _equation_error_fit(combo, prepared, coupling, absolute, start)
         except (ValueError, np.linalg.LinAlgError):
-            return
-        ee_fits[combo] = ee
+            return None
         gain = 1.0 - float(np.mean(ee.residual_validation**2)) / mse_b
         t = paired_block_t(ee_base.residual_validation, ee.residual_validation)
-        screening["+".join(combo)] = {"gain": gain, "t": t}
+        return ee, {"gain": gain, "t": t}
 
-    for e in effects:
-        screen((e,))
+    def screen(combos: Sequence[tuple[str, ...]]) -> None:
+        """The equation-error fits of ``combos`` (on threads): their signatures and the
+        grey fits' starts. Every single effect is screened; a pair only when it may be
+        fitted (the library's pairs grow as its square)."""
+        combos = [c for c in dict.fromkeys(combos) if c not in ee_fits]
+        for combo, out in zip(combos, map_threads(screen_one, combos, cost=_cost),
+                              strict=True):
+            if out is not None:
+                ee_fits[combo], screening["+".join(combo)] = out
+
+    screen([(e,) for e in effects])
     fits = [base]
 
     def grey(combo: tuple[str, ...], on: Sequence[_Prepared] = prepared,
@@ -1250,7 +1282,7 @@ def diagnose_drives(
                                  if data is not None else ""))
         if start is None:
             if len(combo) > 1 and combo not in ee_fits:
-                screen(combo)
+                screen([combo])
             start = ee_fits[combo].values if combo in ee_fits else _initial_from(base)
         try:
             return _grey_fit(combo, on, coupling, start, 2, mass_bounds, data)
@@ -1276,7 +1308,7 @@ def diagnose_drives(
         if found is not None:
             hypotheses.append(found)
     suggested = {h.kind for h in hypotheses}
-    singles = []
+    to_fit = []
     for e in effects:
         sig = screening.get(e)
         twin = sorted(suggested & set(EFFECTS[e].data_twins))
@@ -1289,15 +1321,20 @@ def diagnose_drives(
             say(f"  {e}: its signature does not improve held-out data (t = "
                 f"{sig['t'] if sig else float('nan'):.1f}); not fitted")
             continue
-        f = grey((e,))
+        to_fit.append((e,))
+
+    def fit_single(combo: tuple[str, ...]) -> list[_Fit]:
+        f = grey(combo)
         if f is None:
-            continue
-        singles.append(f)
+            return []
         if (mode == "pair" and f.candidate.physical and _acts_on_position(f)
                 and compare(base.candidate, f.candidate).t > 0.0):
-            fr = grey((e,), restored_on, _initial_from(f))
+            fr = grey(combo, restored_on, _initial_from(f))
             if fr is not None:
-                singles.append(fr)
+                return [f, fr]
+        return [f]
+
+    singles = [f for out in map_threads(fit_single, to_fit, cost=_cost) for f in out]
     fits += singles
     best: dict[tuple[str, ...], _Fit] = {}
     for f in singles:
@@ -1316,24 +1353,27 @@ def diagnose_drives(
         (tuple(sorted(a.effects + b.effects, key=list(effects).index)), a.restored or b.restored)
         for a, b in itertools.combinations(useful, 2)
     ]
-    for combo, restored in pairs[:max_pair_fits]:
+    pairs = pairs[:max_pair_fits]
+    # a pair with internal states costs its singles' fits together and more (the states'
+    # substeps follow the faster of them): fitted where its signature predicts held-out
+    # data better than its better single's, by a material part of what the other effect
+    # explains alone (two hysteresis models describe the same loop: the second adds
+    # nothing)
+    screen([combo for combo, _ in pairs if any(EFFECTS[e].n_states for e in combo)])
+    to_fit = []
+    for combo, restored in pairs:
         if any(EFFECTS[e].n_states for e in combo):
-            # a pair with internal states costs its singles' fits together and more (the
-            # states' substeps follow the faster of them): fitted where its signature
-            # predicts held-out data better than its better single's, by a material part
-            # of what the other effect explains alone (two hysteresis models describe
-            # the same loop: the second adds nothing)
-            if combo not in ee_fits:
-                screen(combo)
             t_pair, share = _pair_screen(combo, ee_fits, ee_base)
             if t_pair < STATEFUL_SCREEN_T or share < STATEFUL_PAIR_MIN_SHARE:
                 say(f"  {' + '.join(combo)}: its signature adds {100 * share:.1f} % of what "
                     f"the second effect explains alone to its better single's (t = "
                     f"{t_pair:.1f}); not fitted")
                 continue
-        f = grey(combo, restored_on) if restored else grey(combo)
-        if f is not None:
-            fits.append(f)
+        to_fit.append((combo, restored))
+    screen([combo for combo, _ in to_fit])
+    fits += [f for f in map_threads(
+        lambda cr: grey(cr[0], restored_on) if cr[1] else grey(cr[0]), to_fit,
+        cost=lambda cr: _cost(cr[0])) if f is not None]
     physics = select_model(base.candidate, [f.candidate for f in fits[1:]])
     physics_fit = next(f for f in fits if f.candidate is physics.chosen)
 
@@ -1349,10 +1389,8 @@ def diagnose_drives(
                                                                           mode))
         fits.append(lin)
         if physics_fit is not base:
-            both = grey(physics_fit.effects, on, _initial_from(physics_fit), hyp)
-            if both is not None:
-                both.candidate.extra["moved"] = lin.candidate.extra["moved"]
-                fits.append(both)
+            # (combo, drives, start, data problem) of the fits that compete, on threads
+            tasks = [(physics_fit.effects, on, _initial_from(physics_fit), hyp)]
             if hyp.prior is None:
                 # the physics that looks like the data problem competes on top of the
                 # chosen physics too (a lag left by a hysteresis model is a time offset
@@ -1375,10 +1413,13 @@ def diagnose_drives(
                     start = _initial_from(physics_fit)
                     near = get_effect(e)().twin_start(hyp.kind, hyp.value, start)
                     start.update({f"{e}.{k}": v for k, v in near.items()})
-                    twin = grey(combo, _with_ride_height(prepared, physics_fit.restored),
-                                start if near else None)
-                    if twin is not None:
-                        fits.append(twin)
+                    tasks.append((combo, _with_ride_height(prepared, physics_fit.restored),
+                                  start if near else None, None))
+            screen([t[0] for t in tasks[1:] if t[2] is None and len(t[0]) > 1])
+            done = map_threads(lambda t: grey(*t), tasks, cost=lambda t: _cost(t[0]))
+            if done[0] is not None:
+                done[0].candidate.extra["moved"] = lin.candidate.extra["moved"]
+            fits.extend(f for f in done if f is not None)
         return lin
 
     # data problems compete with the physics: each is corrected and the models refitted

@@ -35,6 +35,7 @@ import importlib.util
 import os
 import sys
 import textwrap
+import threading
 from collections.abc import Sequence
 from pathlib import Path
 from types import SimpleNamespace
@@ -45,6 +46,7 @@ from fielddiag.effects.base import Effect
 __all__ = ["compile_templates", "model_force", "model_force_z", "model_state_partials"]
 
 _BOUND_CACHE: dict[tuple[Any, ...], Any] = {}
+_COMPILE_LOCK = threading.RLock()
 #: Bump when the generated source changes shape.
 _GENERATOR_VERSION = "3"
 _FORCE_NAMES = ("model_force", "model_force_z", "model_state_partials")
@@ -252,10 +254,17 @@ def compile_templates(classes: tuple[type[Effect], ...], module_name: str,
         memory and on disk per combination of effect classes.
     """
     key = (classes, module_name, names, error_model)
-    options = "" if error_model == "python" else f", error_model={error_model!r}"
     ns = _BOUND_CACHE.get(key)
     if ns is not None:
         return ns
+    with _COMPILE_LOCK:  # fits on threads (fielddiag.threads) compile a combination once
+        ns = _BOUND_CACHE.get(key)
+        return ns if ns is not None else _compile(key, classes, module_name, names, error_model)
+
+
+def _compile(key: tuple[Any, ...], classes: tuple[type[Effect], ...], module_name: str,
+             names: tuple[str, ...], error_model: str) -> Any:
+    options = "" if error_model == "python" else f", error_model={error_model!r}"
     tmod_text = _module_text(module_name)
     imports, lines = _force_source(classes)
     kernel_mods = sorted({c.kernel.py_func.__module__ for c in classes})
@@ -293,7 +302,7 @@ def compile_templates(classes: tuple[type[Effect], ...], module_name: str,
             name = f"fielddiag_kernel_{digest}"
             path = directory / f"{name}.py"
             if not path.exists():
-                tmp = path.with_name(f".{name}.{os.getpid()}.tmp")
+                tmp = path.with_name(f".{name}.{os.getpid()}.{threading.get_ident()}.tmp")
                 tmp.write_text(source(True))
                 os.replace(tmp, path)
             result = sys.modules.get(name)

@@ -28,6 +28,7 @@ from fielddiag.identify.greybox_sensitivities import (
     static_equilibrium,
     static_equilibrium_jacobian,
 )
+from fielddiag.threads import map_threads
 
 __all__ = ["GreyBoxProblem"]
 
@@ -295,9 +296,10 @@ class GreyBoxProblem:
         theta_u, mass, nuis = self.unpack(z)
         kern = _kernels(self.model)._simulate
         consts = self.model.constant_values()
-        out = []
         nf = self.free_model.size
-        for s, pr in enumerate(self._prep):
+
+        def session(s: int) -> tuple[np.ndarray, np.ndarray | None]:
+            pr = self._prep[s]
             d = pr.data
             if self.absolute:
                 m_tot = mass + d.added_mass_kg
@@ -335,8 +337,10 @@ class GreyBoxProblem:
                 a = signal.sosfiltfilt(pr.sos, a)
                 if jz is not None:
                     jz = signal.sosfiltfilt(pr.sos, jz, axis=0)
-            out.append((a[pr.keep], None if jz is None else jz[pr.keep]))
-        return out
+            return a[pr.keep], None if jz is None else jz[pr.keep]
+
+        # the sessions are independent: simulated on threads where the budget allows
+        return map_threads(session, range(len(self._prep)))
 
     def _session_setup(self, d: GreyBoxData, theta_u: np.ndarray, mass: float | None
                        ) -> tuple[np.ndarray, float, float]:
@@ -465,9 +469,10 @@ class GreyBoxProblem:
         partials (and the steps were within RK4's stability for the states), else by
         forward differences of the same discrete simulation (one more run per fitted value;
         a session's initial-state columns re-run that session only)."""
-        out = []
         exact = sens and self.model.has_state_partials
-        for s, pr in enumerate(self._prep):
+
+        def session(s: int) -> tuple[np.ndarray, np.ndarray | None]:
+            pr = self._prep[s]
             # (the acceleration is the same either way, operation for operation)
             a, jz = self._simulate_session_zs(s, z) if exact else (
                 self._simulate_session_z(s, z), None)
@@ -492,8 +497,9 @@ class GreyBoxProblem:
                 a = signal.sosfiltfilt(pr.sos, a)
                 if jz is not None:
                     jz = signal.sosfiltfilt(pr.sos, jz, axis=0)
-            out.append((a[pr.keep], None if jz is None else jz[pr.keep]))
-        return out
+            return a[pr.keep], None if jz is None else jz[pr.keep]
+
+        return map_threads(session, range(len(self._prep)))
 
     def residual_and_jacobian(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Stacked residuals (simulated - measured) and their Jacobian wrt ``z``.
