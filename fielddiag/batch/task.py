@@ -206,9 +206,7 @@ def _diagnose(job: PairJob) -> dict[str, Any]:
         return diagnose_vehicle(*vehicle, added_mass_kg=job.added_mass_kg).to_dict()
     from fielddiag.diagnose.engine import diagnose_sessions
 
-    # the cluster runs one job per worker process and core: the fits stay on one thread
-    return diagnose_sessions([job.before, job.after], added_mass_kg=job.added_mass_kg,
-                             workers=1).to_dict()
+    return diagnose_sessions([job.before, job.after], added_mass_kg=job.added_mass_kg).to_dict()
 
 
 SUMMARISERS = {"identify": summarise_identify, "diagnose": summarise_diagnose}
@@ -217,11 +215,15 @@ _RUNNERS = {"identify": _identify, "diagnose": _diagnose}
 
 def _run_step(job: PairJob, step: str) -> StepOutcome:
     from fielddiag.errors import FieldDiagError
+    from fielddiag.threads import thread_budget
 
     out = Path(job.outputs[step])
     t0 = time.perf_counter()
     try:
-        data = _RUNNERS[step](job)
+        # the cluster runs one job per worker process and core: its fits stay on one
+        # thread (fielddiag.threads)
+        with thread_budget(1):
+            data = _RUNNERS[step](job)
         summary = SUMMARISERS[step](data)
         data["provenance"] = {
             "fingerprint": job.fingerprints[step],

@@ -240,16 +240,18 @@ def _grey_fit(
     substeps: int,
     mass_bounds_kg: tuple[float, float] | None = None,
     data: DataHypothesis | None = None,
+    fit_parts: Sequence[GreyBoxData] | None = None,
 ) -> _Fit:
-    """Grey-box fit of the linear model plus ``effects`` on the fit part of every drive,
-    scored on the held-out part. With a data hypothesis, ``prepared`` holds the corrected
-    drives and the held-out residuals are returned in the recording's units."""
+    """Grey-box fit of the linear model plus ``effects`` on the fit part of every drive
+    (or on ``fit_parts``: stretches of them), scored on the held-out part. With a data
+    hypothesis, ``prepared`` holds the corrected drives and the held-out residuals are
+    returned in the recording's units."""
     model = _model(effects, coupling)
-    fits = [p.fit for p in prepared]
+    fits = [p.fit for p in prepared] if fit_parts is None else list(fit_parts)
     if initial:
         allowed = set(model.param_keys) | {"body_mass_kg"}
         initial = {k: v for k, v in initial.items() if k in allowed}
-    absolute = len({p.fit.added_mass_kg for p in prepared}) > 1
+    absolute = len({f.added_mass_kg for f in fits}) > 1
     # trial steps of Levenberg-Marquardt may overflow before being rejected: not news
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
         result = fit_greybox(fits, model, initial=initial, substeps=substeps, max_iterations=40,
@@ -1478,8 +1480,19 @@ def _diagnose(
         say(f"  with the {_DATA_LABEL[chosen.data.kind]} corrected: "
             f"{' + '.join(chosen.physics)}")
     clipped = _clipped_times(drives)
-    clip_note = (_clipping_competes(base, chosen, clipped)
-                 if chosen is not base and any(t.size for t in clipped.values()) else None)
+    clip_note = None
+    if chosen.physics and any(t.size for t in clipped.values()):
+        # the physics against the clipping: both models fitted again away from the
+        # clipped readings, and compared there (where the stretches left are too short,
+        # the fits on the whole drives are compared away from them)
+        say("fitting the linear model and the finding away from the clipped readings")
+        away = map_threads(lambda eff: _fit_away_from_clipping(
+            eff, chosen, coupling, clipped, mass_bounds), [(), chosen.physics],
+            cost=_cost)
+        pair = away if all(f is not None for f in away) else (base, chosen)
+        clip_note = _clipping_competes(*pair, clipped)
+    elif chosen is not base and any(t.size for t in clipped.values()):
+        clip_note = _clipping_competes(base, chosen, clipped)
     if clip_note is not None:
         say("  " + clip_note[1])
         # clipped peaks can fake physics and a late channel, not a gain change: that is
@@ -1645,6 +1658,12 @@ def _data_size(hyp: DataHypothesis) -> str:
 
 #: Held-out samples this close to a clipped reading are "where the clipping acts" [s].
 CLIP_REACH_S = 0.25
+#: A fit that leaves the clipped readings out keeps the stretches between them that hold
+#: at least this long [s] once their band filter's edges are cut (each stretch costs its
+#: own initial state) ...
+CLEAN_STRETCH_MIN_S = 2.0
+#: ... and is made only where they hold at least this share of every drive's fit part.
+CLEAN_SHARE_MIN = 0.25
 #: When more of the held-out data than this lies near clipped readings, what is left
 #: cannot show physics apart from the clipping (and the wheel motion, integrated from a
 #: clipped input, is wrong in between too): the known data problem explains the mismatch.
@@ -1666,13 +1685,51 @@ def _near_clipping(runs: list, clipped: dict[str, np.ndarray]) -> np.ndarray | N
     return out if out.any() else None
 
 
-def _near(times: np.ndarray, time_s: np.ndarray) -> np.ndarray:
-    """True at ``time_s`` within :data:`CLIP_REACH_S` of any of ``times`` (sorted)."""
+def _near(times: np.ndarray, time_s: np.ndarray, reach_s: float = CLIP_REACH_S
+          ) -> np.ndarray:
+    """True at ``time_s`` within ``reach_s`` of any of ``times`` (sorted)."""
     if times.size == 0:
         return np.zeros(np.size(time_s), bool)
     i = np.clip(np.searchsorted(times, time_s), 1, times.size) - 1
     j = np.clip(i + 1, 0, times.size - 1)
-    return np.minimum(np.abs(time_s - times[i]), np.abs(time_s - times[j])) <= CLIP_REACH_S
+    return np.minimum(np.abs(time_s - times[i]), np.abs(time_s - times[j])) <= reach_s
+
+
+def _clean_stretches(part: GreyBoxData, times: np.ndarray) -> tuple[list[GreyBoxData], float]:
+    """The stretches of ``part`` farther than :data:`CLIP_REACH_S` from every clipped
+    reading (``times``) that hold at least :data:`CLEAN_STRETCH_MIN_S` once the band
+    filter's edges (a period of the band's low corner at each end) are cut, and the share
+    of ``part`` their kept samples hold."""
+    fs = part.sample_rate_hz
+    edges_s = 2.0 / part.band_hz[0] if part.band_hz is not None else 0.0
+    good = ~_near(times, part.start_s + np.arange(part.n_samples) / fs)
+    edge = np.diff(np.concatenate([[0], good.astype(np.int8), [0]]))
+    out = [part.segment(i0 / fs, i1 / fs)
+           for i0, i1 in zip(np.flatnonzero(edge == 1), np.flatnonzero(edge == -1),
+                             strict=True)
+           if (i1 - i0) / fs >= CLEAN_STRETCH_MIN_S + edges_s]
+    return out, sum(c.duration_s - edges_s for c in out) / part.duration_s
+
+
+def _fit_away_from_clipping(effects: tuple[str, ...], fit: _Fit, coupling: bool,
+                            clipped: dict[str, np.ndarray],
+                            mass_bounds_kg: tuple[float, float] | None) -> _Fit | None:
+    """The linear model plus ``effects`` fitted to ``fit``'s drives (corrected as they
+    are for its data problems) on the stretches away from the clipped readings: modelling
+    the clipping means leaving out what it corrupts, from the fit (where it biases the
+    linear model's values) as much as from the comparison. None where too little is left
+    (less than :data:`CLEAN_SHARE_MIN` of a drive's fit part) or the fit fails."""
+    parts = []
+    for p in fit.prepared:
+        clean, share = _clean_stretches(p.fit, clipped.get(p.drive.label, np.empty(0)))
+        if share < CLEAN_SHARE_MIN:
+            return None
+        parts += clean
+    try:
+        return _grey_fit(effects, fit.prepared, coupling, _initial_from(fit), 2,
+                         mass_bounds_kg, fit.data, fit_parts=parts)
+    except (FieldDiagError, np.linalg.LinAlgError, FloatingPointError):
+        return None
 
 
 def _clipping_competes(base: _Fit, chosen: _Fit, clipped: dict[str, np.ndarray]

@@ -1,0 +1,49 @@
+"""Modelling clipping: the stretches of a drive away from its clipped readings."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fielddiag.diagnose.engine import (
+    CLEAN_STRETCH_MIN_S,
+    CLIP_REACH_S,
+    _clean_stretches,
+)
+from fielddiag.identify.greybox import GreyBoxData
+
+
+def _part(duration_s: float = 60.0, fs: float = 125.0, start_s: float = 10.0) -> GreyBoxData:
+    n = int(duration_s * fs)
+    x = np.sin(np.arange(n) / fs)
+    return GreyBoxData(sample_rate_hz=fs, wheel_disp_m=x, wheel_vel_mps=x,
+                       body_accel_mps2=x, body_disp_m=x, body_vel_mps=x,
+                       band_hz=(0.5, 30.0), start_s=start_s, name="before")
+
+
+def test_the_stretches_leave_out_the_clipped_readings_and_the_short_gaps():
+    part = _part()
+    # clipped at 20 s and 22 s (a gap too short to keep) and at 50 s, in recording time
+    clipped = np.array([20.0, 22.0, 50.0])
+    stretches, share = _clean_stretches(part, clipped)
+    spans = [(s.start_s, s.start_s + s.duration_s) for s in stretches]
+    assert spans == [pytest.approx((10.0, 20.0 - CLIP_REACH_S), abs=0.02),
+                     pytest.approx((22.0 + CLIP_REACH_S, 50.0 - CLIP_REACH_S), abs=0.02),
+                     pytest.approx((50.0 + CLIP_REACH_S, 70.0), abs=0.02)]
+    # the share counts what is left once each stretch's band-filter edges (2 / 0.5 Hz)
+    # are cut
+    kept = sum(b - a - 4.0 for a, b in spans)
+    assert share == pytest.approx(kept / 60.0, abs=1e-3)
+    assert all(s.duration_s >= CLEAN_STRETCH_MIN_S + 4.0 for s in stretches)
+
+
+def test_a_drive_clipped_throughout_leaves_nothing():
+    part = _part()
+    stretches, share = _clean_stretches(part, np.arange(10.0, 70.0, 3.0))
+    assert stretches == [] and share == 0.0
+
+
+def test_without_clipping_the_whole_part_is_one_stretch():
+    stretches, share = _clean_stretches(_part(), np.empty(0))
+    assert len(stretches) == 1 and stretches[0].n_samples == _part().n_samples
+    assert share == pytest.approx(56.0 / 60.0, abs=1e-3)
