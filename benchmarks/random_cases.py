@@ -278,8 +278,9 @@ def _effect_params(name: str, s: float, car: sim.QuarterCarParams, added_mass_kg
 
 
 def effect_families() -> tuple[str, ...]:
-    """Every effect of the library's registry (not the linear terms), at call time."""
-    return tuple(sorted(n for n, c in EFFECTS.items() if not c.linear))
+    """Every effect of the library's registry (not the linear terms, nor a shape that
+    names no physics), at call time."""
+    return tuple(sorted(n for n, c in EFFECTS.items() if not c.linear and c.names_physics))
 
 
 # ----------------------------------------------------------------------------- drawing

@@ -69,6 +69,7 @@ from fielddiag.diagnose.selection import (
     select_model,
 )
 from fielddiag.diagnose.shape import fit_shape_model
+from fielddiag.diagnose.surface_words import describe_force_surface
 from fielddiag.drive import CornerDrive, read_corner_drive
 from fielddiag.effects import EFFECTS, ForceModel, diagnosis_effects, get_effect, split_shape
 from fielddiag.effects.base import TRAVEL_BOUND_M
@@ -595,7 +596,9 @@ class Diagnosis:
         base, chosen = self.baseline.candidate, self.chosen.candidate
         findings = [self._finding(e) for e in self.chosen.physics]
         if self.unexplained is not None:
-            findings.append(
+            # first where a shape that names nothing predicts better than the named effects
+            findings.insert(
+                0 if self.unexplained.get("outranks_named") else len(findings),
                 {**self.unexplained, "where": {**self._where(), **self.unexplained["where"]}}
             )
         # drives that do not behave like one corner with the mass added: a competing
@@ -1058,6 +1061,86 @@ def _unexplained(
     }, full_map
 
 
+#: The effect that names no physics (:mod:`fielddiag.effects.force_surface`).
+SURFACE = "force_surface"
+
+
+@dataclass
+class _SurfaceWin:
+    """A force surface that predicts held-out data better than the named effects."""
+
+    fit: _Fit
+    against: _Fit  # the chosen named physics (or the linear model)
+    comparison: Comparison
+
+
+def _surface_wins(surface: _Fit | None, physics_fit: _Fit, base: _Fit,
+                  say: Callable[[str], None]) -> _SurfaceWin | None:
+    """The force surface against the chosen physics and the linear model, by the
+    selection's own rule (its extra parameters counted against both)."""
+    if surface is None or not surface.candidate.physical:
+        return None
+    s, ref = surface.candidate, physics_fit.candidate
+    vs_ref = compare(ref, s)
+    vs_base = compare(base.candidate, s)
+    named = " + ".join(physics_fit.physics) or "the linear model"
+    if (vs_ref.beats(max(1, s.n_params - ref.n_params))
+            and vs_base.beats(s.n_params - base.candidate.n_params)):
+        say(f"  a smooth force surface predicts held-out data better than {named} (NRMSE "
+            f"{s.nrmse_validation:.4f} against {ref.nrmse_validation:.4f}, t = "
+            f"{vs_ref.t:.1f}): a shape no named effect describes")
+        return _SurfaceWin(surface, physics_fit, vs_ref)
+    say(f"  a smooth force surface predicts held-out data no better than {named} (t = "
+        f"{vs_ref.t:.1f})")
+    return None
+
+
+def _surface_finding(win: _SurfaceWin, chosen: _Fit, base: _Fit, coupling: bool,
+                     say: Callable[[str], None], known: Sequence[str]) -> dict:
+    """The ``unexplained`` finding of a winning force surface: the shape of the force the
+    linear model leaves, described in words, first among the findings."""
+    s = win.fit.candidate
+    gain = 1.0 - s.mse_validation / base.candidate.mse_validation
+    finding, _ = _unexplained(base, base.prepared, coupling, base, say, known=known,
+                              reason="a smooth force surface predicts better than the "
+                                     "named effects")
+    names = ", ".join(EFFECTS[n].description for n in known if n in EFFECTS)
+    vals = {k.split(".", 1)[1]: v for k, v in s.values.items() if k.startswith(SURFACE + ".")}
+    r, v, _, _, _ = _departure(base, base.prepared, coupling)
+    unit = "N" if "body_mass_kg" in s.values else "N/kg"
+    told = describe_force_surface(vals, r, v, unit)
+    if told:  # the surface's own shape (the smooth model of the departure stays attached)
+        finding["shape_description"] = told
+    finding["shape_model_held_out_gain"] = finding["held_out_gain"]
+    finding["held_out_gain"] = gain
+    words = "; ".join(finding["shape_description"])
+    closest = ""
+    if chosen.physics:
+        what = " + ".join(EFFECTS[e].description for e in chosen.physics)
+        closest = (f" The closest named effect, {what}, describes only part of it (it is "
+                   "listed after this finding).")
+    finding.update(
+        confidence=float(min(1.0, max(0.5, confidence(win.comparison, gain)))),
+        outranks_named=bool(chosen.physics),
+        force_surface={
+            "coefficients_n": vals,
+            "nrmse_validation": s.nrmse_validation,
+            "held_out_gain_over_linear": gain,
+            "t_vs_named": win.comparison.t,
+        },
+        explanation=(
+            f"A smooth force surface in travel and speed predicts held-out data "
+            f"{100 * gain:.0f} % better than the linear model (held-out NRMSE "
+            f"{base.candidate.nrmse_validation:.3f} -> {s.nrmse_validation:.3f}) and better "
+            f"than any named effect ({names}; t = {win.comparison.t:.1f}): the suspension "
+            f"does something none of them describes.{closest} Shape of the force the linear "
+            f"model leaves: {words}. The surface (it predicts {100 * gain:.0f} % of the "
+            "linear model's held-out misfit) and a smooth model of that shape are attached"),
+    )
+    finding["where"] = {k: v for k, v in finding["where"].items() if k != "between_drives"}
+    return finding
+
+
 def _model_force_on(fit: _Fit, part: GreyBoxData) -> tuple[np.ndarray, np.ndarray,
                                                             np.ndarray]:
     """(travel from the unloaded ride height, the measured restoring force, the model's
@@ -1372,12 +1455,17 @@ def _diagnose(
                     f"{t_pair:.1f}); not fitted")
                 continue
         to_fit.append((combo, restored))
-    screen([combo for combo, _ in to_fit])
-    fits += [f for f in map_threads(
-        lambda cr: grey(cr[0], restored_on) if cr[1] else grey(cr[0]), to_fit,
-        cost=lambda cr: _cost(cr[0])) if f is not None]
+    # beside them, a smooth force surface that names nothing: where it predicts held-out
+    # data better than every named effect, the mismatch is not given the name that fits
+    # least badly (fitted with the pairs, never chosen as physics)
+    surface = (SURFACE,)
+    screen([combo for combo, _ in to_fit] + [surface])
+    done = map_threads(lambda cr: grey(cr[0], restored_on) if cr[1] else grey(cr[0]),
+                       [*to_fit, (surface, False)], cost=lambda cr: _cost(cr[0]))
+    fits += [f for f in done[:-1] if f is not None]
     physics = select_model(base.candidate, [f.candidate for f in fits[1:]])
     physics_fit = next(f for f in fits if f.candidate is physics.chosen)
+    surface_wins = _surface_wins(done[-1], physics_fit, base, say)
 
     def test_data(hyp: DataHypothesis) -> _Fit | None:
         """Correct the drives for ``hyp`` and refit the linear model and the physics."""
@@ -1510,7 +1598,12 @@ def _diagnose(
         if other is not None and other not in fits:
             fits.append(other)
     say("looking for structure no effect explains")
-    unexplained, _ = _unexplained(chosen, chosen.prepared, coupling, base, say, known=tried)
+    if (surface_wins is not None and chosen.data is None
+            and chosen.physics == physics_fit.physics):
+        unexplained = _surface_finding(surface_wins, chosen, base, coupling, say, tried)
+    else:
+        unexplained, _ = _unexplained(chosen, chosen.prepared, coupling, base, say,
+                                      known=tried)
     if (unexplained is None and hopeless and not chosen.physics
             and (chosen.data is None or _linear_hopeless(chosen, mass_bounds))):
         # one linear car cannot describe both drives and no effect of the library does:

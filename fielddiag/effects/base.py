@@ -206,6 +206,9 @@ class Effect:
         Tried by default as a candidate by the diagnosis.
     diagnosis_rank : int
         Order among the diagnosis's candidates (lower first; ties by name).
+    names_physics : bool
+        A law of some physics (False for a shape that names nothing, the force surface:
+        not drawn as a concealed effect, never reported by name).
     n_states : int
         Internal states (0 for a memoryless force law).
     description : str
@@ -271,6 +274,7 @@ class Effect:
     linear: ClassVar[bool] = False
     diagnosable: ClassVar[bool] = False
     diagnosis_rank: ClassVar[int] = 100
+    names_physics: ClassVar[bool] = True
     n_states: ClassVar[int] = 0
     state_partials: ClassVar[Any] = None
     data_twins: ClassVar[tuple[str, ...]] = ()
