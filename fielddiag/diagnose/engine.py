@@ -1096,14 +1096,17 @@ def _surface_wins(surface: _Fit | None, physics_fit: _Fit, base: _Fit,
 
 
 def _surface_finding(win: _SurfaceWin, chosen: _Fit, base: _Fit, coupling: bool,
-                     say: Callable[[str], None], known: Sequence[str]) -> dict:
+                     say: Callable[[str], None], known: Sequence[str],
+                     hopeless: str | None = None) -> dict:
     """The ``unexplained`` finding of a winning force surface: the shape of the force the
-    linear model leaves, described in words, first among the findings."""
+    linear model leaves, described in words, first among the findings (``hopeless``: the
+    words of a linear model that cannot describe both drives, told first)."""
     s = win.fit.candidate
     gain = 1.0 - s.mse_validation / base.candidate.mse_validation
+    reason = hopeless.split(" (")[0] if hopeless else None
     finding, _ = _unexplained(base, base.prepared, coupling, base, say, known=known,
-                              reason="a smooth force surface predicts better than the "
-                                     "named effects")
+                              reason=reason or "a smooth force surface predicts better "
+                                               "than the named effects")
     names = ", ".join(EFFECTS[n].description for n in known if n in EFFECTS)
     vals = {k.split(".", 1)[1]: v for k, v in s.values.items() if k.startswith(SURFACE + ".")}
     r, v, _, _, _ = _departure(base, base.prepared, coupling)
@@ -1129,7 +1132,8 @@ def _surface_finding(win: _SurfaceWin, chosen: _Fit, base: _Fit, coupling: bool,
             "t_vs_named": win.comparison.t,
         },
         explanation=(
-            f"A smooth force surface in travel and speed predicts held-out data "
+            (f"{reason[0].upper()}{reason[1:]}. " if reason else "")
+            + f"A smooth force surface in travel and speed predicts held-out data "
             f"{100 * gain:.0f} % better than the linear model (held-out NRMSE "
             f"{base.candidate.nrmse_validation:.3f} -> {s.nrmse_validation:.3f}) and better "
             f"than any named effect ({names}; t = {win.comparison.t:.1f}): the suspension "
@@ -1137,7 +1141,9 @@ def _surface_finding(win: _SurfaceWin, chosen: _Fit, base: _Fit, coupling: bool,
             f"model leaves: {words}. The surface (it predicts {100 * gain:.0f} % of the "
             "linear model's held-out misfit) and a smooth model of that shape are attached"),
     )
-    finding["where"] = {k: v for k, v in finding["where"].items() if k != "between_drives"}
+    if reason is None:
+        finding["where"] = {k: v for k, v in finding["where"].items()
+                            if k != "between_drives"}
     return finding
 
 
@@ -1600,7 +1606,8 @@ def _diagnose(
     say("looking for structure no effect explains")
     if (surface_wins is not None and chosen.data is None
             and chosen.physics == physics_fit.physics):
-        unexplained = _surface_finding(surface_wins, chosen, base, coupling, say, tried)
+        unexplained = _surface_finding(surface_wins, chosen, base, coupling, say, tried,
+                                       hopeless if mode == "pair" else None)
     else:
         unexplained, _ = _unexplained(chosen, chosen.prepared, coupling, base, say,
                                       known=tried)

@@ -36,5 +36,5 @@ def test_inadequate_linear_model_without_a_named_effect_is_missing_physics():
     assert "cannot describe these drives with one sprung mass" in f["explanation"]
     assert f["shape_description"]  # its shape in words, and the model of it
     assert f["model"]["force_unit"] == "N"
-    # the shape model predicts some of the held-out force left (0.12 on this pair)
+    # the attached model predicts part of the held-out force left
     assert 0.0 < f["held_out_gain"] < 1.0
