@@ -445,8 +445,11 @@ def _finding_card(f: Mapping[str, Any]) -> None:
                     ui.label(f"• {line}").classes("text-sm")
             gain = f.get("held_out_gain")
             if isinstance(gain, int | float):
-                ui.label(f"a smooth model of this shape predicts {100 * gain:.0f} % of the "
-                         "force left on held-out data").classes("text-xs text-gray-600")
+                what = ("the force surface predicts {:.0f} % of the linear model's held-out "
+                        "misfit" if isinstance(f.get("force_surface"), Mapping) else
+                        "a smooth model of this shape predicts {:.0f} % of the force left on "
+                        "held-out data")
+                ui.label(what.format(100 * gain)).classes("text-xs text-gray-600")
         params, stds = f.get("parameters"), f.get("std") or {}
         if isinstance(params, Mapping) and params:
             ui.label(", ".join(
