@@ -14,6 +14,7 @@ import argparse
 import json
 from pathlib import Path
 
+from fielddiag.effects import diagnosis_effects
 from fielddiag.errors import FieldDiagError
 from fielddiag.validate import arg_existing_file, arg_number, finite_session
 
@@ -25,10 +26,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         description=(
             "Fit the linear model, locate where it and the recording differ (time windows, "
             "frequency band, region of suspension travel and speed), test the effects a linear "
-            "model leaves out (coulomb_friction, cubic_stiffness, bump_stop, "
-            "asymmetric_damping, and pairs of them) on data held out from the fit, and report "
-            "the physics found, or that the linear model is adequate, plus warnings about "
-            "the data itself. One session with a force channel is diagnosed as a rig test."
+            f"model leaves out ({', '.join(diagnosis_effects())}, and pairs of them) and a "
+            "smooth force surface that names no physics, on data held out from the fit, with "
+            "the data problems (a late channel, a gain change, clipping) as competing "
+            "explanations, and report the physics found (or 'unexplained' with its shape), "
+            "or that the linear model is adequate. One session with a force channel is "
+            "diagnosed as a rig test."
         ),
     )
     p.add_argument(
