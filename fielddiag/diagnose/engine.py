@@ -474,6 +474,8 @@ class Diagnosis:
     # data problems that tie with physics that looks like them: told in one
     # ``data_problem_or_physics`` warning, not as a bare data problem
     undecided: frozenset[str] = frozenset()
+    # the force surface, where it predicts better than the named effects and is reported
+    surface: _Fit | None = None
 
     @property
     def verdict(self) -> str:
@@ -607,6 +609,9 @@ class Diagnosis:
         warnings = [w.to_dict() for w in [*self.warnings, *problems]
                     if not (w.kind == "pair_inconsistent" and (findings or problems))]
         aug = base if chosen is base else chosen
+        if chosen is base and self.surface is not None:
+            # nothing named: the model with the finding is the linear one with the surface
+            aug = self.surface.candidate
         return {
             "mode": self.mode,
             "verdict": self.verdict,
@@ -629,7 +634,7 @@ class Diagnosis:
                         k: v for k, v in f.candidate.values.items() if k.split(".")[0] in f.effects
                     },
                 }
-                for f in self.fits
+                for f in [*self.fits, *([self.surface] if self.surface else [])]
                 if f is not self.baseline
             ],
             "screening": self.screening,
@@ -1604,10 +1609,12 @@ def _diagnose(
         if other is not None and other not in fits:
             fits.append(other)
     say("looking for structure no effect explains")
+    surface_reported = None
     if (surface_wins is not None and chosen.data is None
             and chosen.physics == physics_fit.physics):
         unexplained = _surface_finding(surface_wins, chosen, base, coupling, say, tried,
                                        hopeless if mode == "pair" else None)
+        surface_reported = surface_wins.fit
     else:
         unexplained, _ = _unexplained(chosen, chosen.prepared, coupling, base, say,
                                       known=tried)
@@ -1628,7 +1635,7 @@ def _diagnose(
             away, _ = _unexplained(chosen, chosen.prepared, coupling, base, say, known=tried,
                                    exclude=lambda d, t: _near(clipped[d.label], t))
         if away is None or share > CLIP_DOMINATES:
-            unexplained = None
+            unexplained = surface_reported = None
             where = ("cannot be told from the clipping, the simpler explanation"
                      if share > CLIP_DOMINATES else "is not found away from them")
             said = any(w.kind == "clipping_explains" for w in warnings)
@@ -1667,6 +1674,7 @@ def _diagnose(
         ride_height=ride,
         linear_inadequate=hopeless,
         undecided=undecided,
+        surface=surface_reported,
     )
 
 
