@@ -478,6 +478,14 @@ class Diagnosis:
     surface: _Fit | None = None
 
     @property
+    def described(self) -> _Fit:
+        """The model that carries the findings: the chosen one, or the linear model with the
+        force surface where only that is reported."""
+        if self.chosen is self.baseline and self.surface is not None:
+            return self.surface
+        return self.chosen
+
+    @property
     def verdict(self) -> str:
         """``missing_physics`` when a physical effect is chosen or structure is left;
         a data problem alone leaves the suspension ``adequate``."""
@@ -552,7 +560,7 @@ class Diagnosis:
             curve's miss is that model's residual) [N, or N/kg per unit mass].
         """
         fits = []
-        aug_runs = {r[0].name: r for r in self.chosen.runs}
+        aug_runs = {r[0].name: r for r in self.described.runs}
         for sf, measured, residual, t in self.baseline.runs:
             step = max(1, t.size // max_points)
             aug = aug_runs.get(sf.name)
@@ -595,7 +603,7 @@ class Diagnosis:
         dict
             Plain JSON-serialisable values, SI units in the key names.
         """
-        base, chosen = self.baseline.candidate, self.chosen.candidate
+        base = self.baseline.candidate
         findings = [self._finding(e) for e in self.chosen.physics]
         if self.unexplained is not None:
             # first where a shape that names nothing predicts better than the named effects
@@ -608,10 +616,8 @@ class Diagnosis:
         problems = [w for w in self.data_problems() if w.kind not in self.undecided]
         warnings = [w.to_dict() for w in [*self.warnings, *problems]
                     if not (w.kind == "pair_inconsistent" and (findings or problems))]
-        aug = base if chosen is base else chosen
-        if chosen is base and self.surface is not None:
-            # nothing named: the model with the finding is the linear one with the surface
-            aug = self.surface.candidate
+        # nothing named: the model with the finding is the linear one with the surface
+        aug = self.described.candidate
         return {
             "mode": self.mode,
             "verdict": self.verdict,
@@ -1652,7 +1658,8 @@ def _diagnose(
     r, v, dep, _, _ = _departure(base, prepared, coupling)
     dmap = departure_map(r, v, dep, bins=12)
     region = dmap.region()
-    loops = _restoring_loops(base, chosen, prepared)
+    loops = _restoring_loops(base, chosen if surface_reported is None or chosen is not base
+                             else surface_reported, prepared)
     return Diagnosis(
         loops=loops,
         mode=mode,

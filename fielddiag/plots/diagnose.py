@@ -26,7 +26,7 @@ def plot_worst_windows(diag, path: str | os.PathLike) -> Path:
     wins = diag.windows[:3]
     # validation runs are named like "before[105.0-150.0 s]": key them by drive label
     base_runs = {lab.split("[")[0]: (t, m, s) for lab, t, m, s in _runs(diag.baseline)}
-    aug_runs = {lab.split("[")[0]: (t, m, s) for lab, t, m, s in _runs(diag.chosen)}
+    aug_runs = {lab.split("[")[0]: (t, m, s) for lab, t, m, s in _runs(diag.described)}
     spread = not wins
     if spread:  # residual spread evenly: show the first 6 s of each held-out part
         wins = [
@@ -47,10 +47,10 @@ def plot_worst_windows(diag, path: str | os.PathLike) -> Path:
         ax.plot(t[sel], m[sel], color="k", lw=1.2, label="recorded")
         ax.plot(t[sel], s[sel], color="tab:orange", lw=1.0, label="linear model")
         rax.plot(t[sel], (m - s)[sel], color="tab:orange", lw=1.0, label="linear model")
-        if diag.chosen is not diag.baseline:
+        if diag.described is not diag.baseline:
             ta, ma, sa = aug_runs[lab]
             sel_a = (ta >= w["start_s"]) & (ta <= w["end_s"])
-            name = " + ".join(diag.chosen.effects)
+            name = " + ".join(diag.described.effects).replace("force_surface", "force surface")
             ax.plot(ta[sel_a], sa[sel_a], color="tab:green", lw=1.0, ls="--", label=f"with {name}")
             rax.plot(ta[sel_a], (ma - sa)[sel_a], color="tab:green", lw=1.0, ls="--",
                      label=f"with {name}")
@@ -87,9 +87,9 @@ def plot_residual_spectrum(diag, path: str | os.PathLike) -> Path:
     ax = fig.subplots()
     for fit, colour, name in (
         (diag.baseline, "tab:orange", "linear model"),
-        (diag.chosen, "tab:green", "with findings"),
+        (diag.described, "tab:green", "with findings"),
     ):
-        if name == "with findings" and diag.chosen is diag.baseline:
+        if name == "with findings" and diag.described is diag.baseline:
             continue
         res = np.concatenate([r[2] for r in fit.runs])
         fs = fit.runs[0][0].sample_rate_hz

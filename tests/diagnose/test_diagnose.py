@@ -262,6 +262,13 @@ def test_effect_outside_the_library_is_unexplained_where_it_acts(results):
     assert surface["held_out_gain_over_linear"] >= 0.30 and surface["t_vs_named"] > 4.0
     extra_at_20mm = surface["coefficients_n"]["surface_travel2_speed_n"] / 0.2
     assert extra_at_20mm == pytest.approx(1800.0 * (20 / 30) ** 2, rel=0.15)
+    # the fit improves with it, and the car fitted beside the surface is the true one
+    assert out["augmented"]["nrmse_validation"] < 0.3 * out["baseline"]["nrmse_validation"]
+    car = SCENARIOS["travel_dependent_damping"].car
+    assert out["augmented_model"]["sprung_mass_kg"] == pytest.approx(car.body_mass_kg,
+                                                                      rel=0.05)
+    fit = out["fit"][0]
+    assert fit["simulated_augmented"] != fit["simulated_linear"]
     region = last["where"]["region"]
     assert region is not None
     # it acts where the travel is large: the region reaches the outer quarters of r
