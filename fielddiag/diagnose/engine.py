@@ -1616,10 +1616,27 @@ def _diagnose(
             fits.append(other)
     say("looking for structure no effect explains")
     surface_reported = None
-    if (surface_wins is not None and chosen.data is None
-            and chosen.physics == physics_fit.physics):
-        unexplained = _surface_finding(surface_wins, chosen, base, coupling, say, tried,
-                                       hopeless if mode == "pair" else None)
+    if chosen.data is not None and chosen.physics and clip_note is None:
+        # physics chosen on drives corrected for a data problem: the surface competes on
+        # the same corrected drives, against the linear model corrected alike
+        lin = next((f for f in fits if not f.physics and f.data is chosen.data), None)
+        if lin is not None:
+            say("fitting the force surface to the drives corrected for the "
+                f"{_DATA_LABEL[chosen.data.kind]}")
+            try:
+                corrected = _grey_fit((SURFACE,), chosen.prepared, coupling,
+                                      _initial_from(lin), 2, mass_bounds, chosen.data)
+            except (FieldDiagError, np.linalg.LinAlgError, FloatingPointError):
+                corrected = None
+            surface_wins = _surface_wins(corrected, chosen, lin, say)
+            base_for_surface = lin
+    else:
+        base_for_surface = base
+    if surface_wins is not None and (
+            (chosen.data is None and chosen.physics == physics_fit.physics)
+            or surface_wins.against is chosen):
+        unexplained = _surface_finding(surface_wins, chosen, base_for_surface, coupling, say,
+                                       tried, hopeless if mode == "pair" else None)
         surface_reported = surface_wins.fit
     else:
         unexplained, _ = _unexplained(chosen, chosen.prepared, coupling, base, say,
