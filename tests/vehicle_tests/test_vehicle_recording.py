@@ -37,10 +37,11 @@ from fielddiag.vehicle.corner_map import VIRTUAL_DAQ_MAP, daq_columns, parse_cha
 from fielddiag.virtual_drive import VirtualDrive
 
 RATE_HZ = 500.0
-#: Samples a recording of ``d`` seconds holds lie within (d - 0.1 s, d + 0.15 s) x rate: the
+#: Samples a recording of ``d`` seconds holds lie within (d - 0.1 s, d + 0.3 s) x rate: the
 #: first frame arrives a frame (10 ms) after START and the driver batches 20 ms into a block,
-#: and the stop comes up to one poll of the command (0.1 s) after the duration.
-EARLY_S, LATE_S = 0.1, 0.15
+#: and the stop comes up to one poll of the command (0.1 s) after the duration, later on a
+#: loaded machine (6.16 s once, with the suite's diagnoses on both cores).
+EARLY_S, LATE_S = 0.1, 0.3
 #: The virtual ECU's SPEED: 41 Hz, 0.01 km/h per bit.
 SPEED_PERIOD_S, SPEED_LSB_MPS = 1 / 41.0, 0.01 / 3.6
 
