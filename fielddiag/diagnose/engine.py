@@ -1615,7 +1615,7 @@ def _diagnose(
         if other is not None and other not in fits:
             fits.append(other)
     say("looking for structure no effect explains")
-    surface_reported = None
+    surface_reported, base_for_surface = None, base
     if chosen.data is not None and chosen.physics and clip_note is None:
         # physics chosen on drives corrected for a data problem: the surface competes on
         # the same corrected drives, against the linear model corrected alike
@@ -1630,8 +1630,6 @@ def _diagnose(
                 corrected = None
             surface_wins = _surface_wins(corrected, chosen, lin, say)
             base_for_surface = lin
-    else:
-        base_for_surface = base
     if surface_wins is not None and (
             (chosen.data is None and chosen.physics == physics_fit.physics)
             or surface_wins.against is chosen):
@@ -1817,14 +1815,13 @@ def _near_clipping(runs: list, clipped: dict[str, np.ndarray]) -> np.ndarray | N
     return out if out.any() else None
 
 
-def _near(times: np.ndarray, time_s: np.ndarray, reach_s: float = CLIP_REACH_S
-          ) -> np.ndarray:
-    """True at ``time_s`` within ``reach_s`` of any of ``times`` (sorted)."""
+def _near(times: np.ndarray, time_s: np.ndarray) -> np.ndarray:
+    """True at ``time_s`` within :data:`CLIP_REACH_S` of any of ``times`` (sorted)."""
     if times.size == 0:
         return np.zeros(np.size(time_s), bool)
     i = np.clip(np.searchsorted(times, time_s), 1, times.size) - 1
     j = np.clip(i + 1, 0, times.size - 1)
-    return np.minimum(np.abs(time_s - times[i]), np.abs(time_s - times[j])) <= reach_s
+    return np.minimum(np.abs(time_s - times[i]), np.abs(time_s - times[j])) <= CLIP_REACH_S
 
 
 def _clean_stretches(part: GreyBoxData, times: np.ndarray) -> tuple[list[GreyBoxData], float]:
