@@ -1484,11 +1484,25 @@ def _diagnose(
     physics_fit = next(f for f in fits if f.candidate is physics.chosen)
     surface_wins = _surface_wins(done[-1], physics_fit, base, say)
 
-    def test_data(hyp: DataHypothesis) -> _Fit | None:
-        """Correct the drives for ``hyp`` and refit the linear model and the physics."""
+    def signature_left(combo: tuple[str, ...], on: Sequence[_Prepared]) -> float:
+        """Paired-block t of ``combo``'s equation-error signature against the linear
+        model's on the drives ``on`` (inf where either cannot be fitted: not screened)."""
+        try:
+            lin_ee = _equation_error_fit((), on, coupling, absolute, dict(ee_base.values))
+            start = dict(lin_ee.values)
+            for e in combo:
+                start.update(ee_fits[(e,)].values if (e,) in ee_fits else {})
+            ee = _equation_error_fit(combo, on, coupling, absolute, start)
+        except (ValueError, np.linalg.LinAlgError):
+            return float("inf")
+        return paired_block_t(lin_ee.residual_validation, ee.residual_validation)
+
+    def test_data(hyp: DataHypothesis, lin: _Fit | None = None) -> _Fit | None:
+        """Correct the drives for ``hyp`` and refit the linear model (unless ``lin`` is
+        its fit to them already) and the physics."""
         on = _with_ride_height([_prepare(d, band, rate, holdout_fraction)
                                 for d in correct_drives(drives, hyp)], physics_fit.restored)
-        lin = grey((), on, _initial_from(base), hyp)
+        lin = lin or grey((), on, _initial_from(base), hyp)
         if lin is None:
             return None
         lin.candidate.extra["moved"] = moved_text(
@@ -1497,7 +1511,19 @@ def _diagnose(
         fits.append(lin)
         if physics_fit is not base:
             # (combo, drives, start, data problem) of the fits that compete, on threads
-            tasks = [(physics_fit.effects, on, _initial_from(physics_fit), hyp)]
+            refit = [(physics_fit.effects, on, _initial_from(physics_fit), hyp)]
+            if any(EFFECTS[e].n_states for e in physics_fit.effects):
+                # physics with internal states is fitted to the corrected drives where its
+                # signature still beats the corrected linear model's there (as every single
+                # effect's must before its full fit): a top mount whose delay the
+                # correction took would otherwise be fitted stiff, at its dearest (20-30 s)
+                t_left = signature_left(physics_fit.effects, on)
+                if t_left < STATEFUL_SCREEN_T:
+                    say(f"  {' + '.join(physics_fit.effects)}: its signature does not "
+                        f"improve held-out data once the drives are corrected (t = "
+                        f"{t_left:.1f}); not fitted to them")
+                    refit = []
+            tasks = list(refit)
             if hyp.prior is None:
                 # the physics that looks like the data problem competes on top of the
                 # chosen physics too (a lag left by a hysteresis model is a time offset
@@ -1522,9 +1548,9 @@ def _diagnose(
                     start.update({f"{e}.{k}": v for k, v in near.items()})
                     tasks.append((combo, _with_ride_height(prepared, physics_fit.restored),
                                   start if near else None, None))
-            screen([t[0] for t in tasks[1:] if t[2] is None and len(t[0]) > 1])
+            screen([t[0] for t in tasks[len(refit):] if t[2] is None and len(t[0]) > 1])
             done = map_threads(lambda t: grey(*t), tasks, cost=lambda t: _cost(t[0]))
-            if done[0] is not None:
+            if refit and done[0] is not None:
                 done[0].candidate.extra["moved"] = lin.candidate.extra["moved"]
             fits.extend(f for f in done if f is not None)
         return lin
@@ -1533,6 +1559,7 @@ def _diagnose(
     offset_fit = None
     for hyp in hypotheses:
         say(f"testing a {_DATA_LABEL[hyp.kind]} ({_data_size(hyp)}) against the physics")
+        converged = None
         if hyp.kind == "channel_time_offset":
             # the transmissibility's phase slope is measured against a linear model that
             # absorbed part of the delay: refine it on the fit part of the corrected drives
@@ -1544,10 +1571,13 @@ def _diagnose(
                     break
                 step = _residual_delay_s(trial, substeps=2)
                 if abs(step) <= hyp.std:
+                    # the linear model on the drives corrected for it is fitted already
+                    # (on passive sag, as the refinement assumes)
+                    converged = None if physics_fit.restored else trial
                     break
                 hyp = replace(hyp, value=hyp.value + step)
                 say(f"  refined to {_data_size(hyp)}")
-        lin = test_data(hyp)
+        lin = test_data(hyp, converged)
         if lin is not None and hyp.kind == "channel_time_offset":
             offset_fit = lin
     if fd is not None and offset_fit is not None:
