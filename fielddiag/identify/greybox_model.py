@@ -11,6 +11,7 @@ compared in the same band (zero-phase Butterworth on both).
 from __future__ import annotations
 
 import math
+import threading
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
@@ -150,7 +151,10 @@ class GreyBoxProblem:
         n_free = self.free_model.size + (1 if self.has_mass else 0)
         self.nuis_index = n_free
         self.n_fit = n_free + (2 * len(self.data) if fit_initial_state else 0)
+        #: Simulations run (each session's counts; sessions run on threads: counted under
+        #: a lock, :meth:`_count`).
         self.evaluations = 0
+        self._count_lock = threading.Lock()
         #: Simulation horizon [s] of a continuation stage (None: the whole record).
         self.horizon_s: float | None = None
         self._prep = [self._prepare(d) for d in self.data]
@@ -165,6 +169,11 @@ class GreyBoxProblem:
         self._equilibrium_jacobians: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
 
     # ------------------------------------------------------------------ data
+    def _count(self) -> None:
+        """One more simulation (sessions simulated on threads count under a lock)."""
+        with self._count_lock:
+            self.evaluations += 1
+
     def _prepare(self, d: GreyBoxData) -> _Prepared:
         sos = _band_sos(d.band_hz, d.sample_rate_hz)
         if d.band_hz is None:
@@ -316,7 +325,7 @@ class GreyBoxProblem:
                                nuis[s, 1], sens, every,
                                d.body_disp_m if every else _EMPTY,
                                d.body_vel_mps if every else _EMPTY, d.band_hz is not None)
-            self.evaluations += 1
+            self._count()
             jz = None
             if sens:
                 p = self.n_model
@@ -392,7 +401,7 @@ class GreyBoxProblem:
         samples if given) for a model with internal states."""
         st = self._stateful_setup(s, z)
         d, every = st["d"], st["every"]
-        self.evaluations += 1
+        self._count()
         n = d.n_samples if n_max is None else min(int(n_max), d.n_samples)
         return _kernels(self.model)._simulate_z(
             d.wheel_disp_m[:n], d.wheel_vel_mps[:n], st["h"], st["nsub"], st["theta"],
@@ -433,7 +442,7 @@ class GreyBoxProblem:
         sx_reset = np.zeros(q)
         if d.band_hz is not None:  # r_static moves with the equilibrium
             sx_reset[:nt] = dx_eq[tcols]
-        self.evaluations += 1
+        self._count()
         a, jac = _kernels_sens(self.model)._simulate_zs(
             d.wheel_disp_m, d.wheel_vel_mps, st["h"], st["nsub"], theta,
             self.model.constant_values(), st["m_tot"], st["load"], st["x_eq"], st["z_eq"],
