@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import itertools
 import os
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -1351,14 +1352,21 @@ def _diagnose(
     ee_fits: dict[tuple[str, ...], _EquationErrorFit] = {}
     mse_b = float(np.mean(ee_base.residual_validation**2))
 
+    # seconds each signature fit took: the full fits' scheduling order (dearest first) reads
+    # them beside the states' count (a knee or a step costs iterations in both)
+    screen_s: dict[tuple[str, ...], float] = {}
+
     def screen_one(combo: tuple[str, ...]) -> tuple[_EquationErrorFit, dict] | None:
         start = dict(ee_base.values)
         for e in combo:
             start.update(ee_fits[(e,)].values if (e,) in ee_fits else {})
+        t0 = time.perf_counter()
         try:
             ee = _equation_error_fit(combo, prepared, coupling, absolute, start)
         except (ValueError, np.linalg.LinAlgError):
             return None
+        finally:
+            screen_s[combo] = time.perf_counter() - t0
         gain = 1.0 - float(np.mean(ee.residual_validation**2)) / mse_b
         t = paired_block_t(ee_base.residual_validation, ee.residual_validation)
         return ee, {"gain": gain, "t": t}
@@ -1373,8 +1381,15 @@ def _diagnose(
             if out is not None:
                 ee_fits[combo], screening["+".join(combo)] = out
 
-    screen([(e,) for e in effects])
+    # beside the library, a smooth force surface that names nothing: where it predicts
+    # held-out data better than every named effect, the mismatch is not given the name
+    # that fits least badly (fitted with the single effects, never chosen as physics)
+    surface = (SURFACE,)
+    screen([(e,) for e in effects] + [surface])
     fits = [base]
+
+    def cost(combo: tuple[str, ...]) -> float:
+        return _cost(combo) + screen_s.get(combo, 0.0)
 
     def grey(combo: tuple[str, ...], on: Sequence[_Prepared] = prepared,
              start: dict[str, float] | None = None,
@@ -1436,7 +1451,10 @@ def _diagnose(
                 return [f, fr]
         return [f]
 
-    singles = [f for out in map_threads(fit_single, to_fit, cost=_cost) for f in out]
+    done = map_threads(lambda c: [grey(c)] if c == surface else fit_single(c),
+                       [*to_fit, surface], cost=cost)
+    surface_fit = done[-1][0]
+    singles = [f for out in done[:-1] for f in out]
     fits += singles
     best: dict[tuple[str, ...], _Fit] = {}
     for f in singles:
@@ -1472,17 +1490,13 @@ def _diagnose(
                     f"{t_pair:.1f}); not fitted")
                 continue
         to_fit.append((combo, restored))
-    # beside them, a smooth force surface that names nothing: where it predicts held-out
-    # data better than every named effect, the mismatch is not given the name that fits
-    # least badly (fitted with the pairs, never chosen as physics)
-    surface = (SURFACE,)
-    screen([combo for combo, _ in to_fit] + [surface])
+    screen([combo for combo, _ in to_fit])
     done = map_threads(lambda cr: grey(cr[0], restored_on) if cr[1] else grey(cr[0]),
-                       [*to_fit, (surface, False)], cost=lambda cr: _cost(cr[0]))
-    fits += [f for f in done[:-1] if f is not None]
+                       to_fit, cost=lambda cr: cost(cr[0]))
+    fits += [f for f in done if f is not None]
     physics = select_model(base.candidate, [f.candidate for f in fits[1:]])
     physics_fit = next(f for f in fits if f.candidate is physics.chosen)
-    surface_wins = _surface_wins(done[-1], physics_fit, base, say)
+    surface_wins = _surface_wins(surface_fit, physics_fit, base, say)
 
     def signature_left(combo: tuple[str, ...], on: Sequence[_Prepared]) -> float:
         """Paired-block t of ``combo``'s equation-error signature against the linear
