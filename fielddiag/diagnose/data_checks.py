@@ -324,7 +324,7 @@ def fit_gain_change(
     # neighbouring Welch lines correlate, so the least-squares std is too small: the factor
     # is calibrated on fresh random linear pairs (benchmarks/random_cases.py, 54 draws at
     # 200-1000 Hz, 90-300 s, 25-45 dB): with 2.0 the gain's z had a std of 0.63-0.78
-    sd = float(np.sqrt(cov[4, 4])) * GAIN_STD_INFLATION
+    sd = float(np.sqrt(cov[4, 4])) * GAIN_STD_INFLATION if cov[4, 4] > 0 else np.nan
     if not np.isfinite(sd):
         return None
     change = float(np.exp(fitg.x[4]) - 1.0)

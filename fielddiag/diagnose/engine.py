@@ -1415,13 +1415,15 @@ def _diagnose(
     # the data problems the recording suggests (tested against the physics below); an
     # effect that looks like one of them is fitted whatever its signature says
     hypotheses = []
+    # the clipped readings (times by drive): a delay is measured away from them
+    clipped = _clipped_times(drives)
     gravity = gain_from_gravity(drives) if mode == "pair" else None
     if fd is not None:
         lin = fd.linear or {_LINEAR_SI[k]: v for k, v in base.candidate.values.items()
                             if k in _LINEAR_SI}
         hypotheses = fd.hypotheses(lin, gravity)
     if not any(h.kind == "channel_time_offset" for h in hypotheses):
-        found = _time_domain_offset(base)
+        found = _time_domain_offset(base, clipped)
         if found is not None:
             hypotheses.append(found)
     suggested = {h.kind for h in hypotheses}
@@ -1577,17 +1579,28 @@ def _diagnose(
         if hyp.kind == "channel_time_offset":
             # the transmissibility's phase slope is measured against a linear model that
             # absorbed part of the delay: refine it on the fit part of the corrected drives
+            # (away from clipped readings, where a clipped peak's misfit pulls the linear
+            # model and hides the delay)
             for _ in range(5):
                 on = [_prepare(d, band, rate, holdout_fraction)
                       for d in correct_drives(drives, hyp)]
-                trial = grey((), on, _initial_from(base), hyp)
+                clean = _clean_fit_parts(on, clipped) if any(
+                    t.size for t in clipped.values()) else None
+                if clean is None:
+                    trial = grey((), on, _initial_from(base), hyp)
+                else:
+                    try:
+                        trial = _grey_fit((), on, coupling, _initial_from(base), 2,
+                                          mass_bounds, hyp, fit_parts=clean)
+                    except (FieldDiagError, np.linalg.LinAlgError, FloatingPointError):
+                        trial = None
                 if trial is None:
                     break
-                step = _residual_delay_s(trial, substeps=2)
+                step = _residual_delay_s(trial, substeps=2, clipped=clipped)
                 if abs(step) <= hyp.std:
                     # the linear model on the drives corrected for it is fitted already
-                    # (on passive sag, as the refinement assumes)
-                    converged = None if physics_fit.restored else trial
+                    # (on passive sag, as the refinement assumes; on the whole drives)
+                    converged = None if physics_fit.restored or clean is not None else trial
                     break
                 hyp = replace(hyp, value=hyp.value + step)
                 say(f"  refined to {_data_size(hyp)}")
@@ -1628,7 +1641,6 @@ def _diagnose(
         # a data problem plus physics the uncorrected data did not choose: fine, but say so
         say(f"  with the {_DATA_LABEL[chosen.data.kind]} corrected: "
             f"{' + '.join(chosen.physics)}")
-    clipped = _clipped_times(drives)
     clip_note = None
     if chosen.physics and any(t.size for t in clipped.values()):
         # the physics against the clipping: both models fitted again away from the
@@ -1651,6 +1663,15 @@ def _diagnose(
                      and f.data.evidence
                      and any(h.kind == f.data.kind for h in chosen.data.chain)), base) \
             if chosen.data is not None else base
+        if not clip_note[0] and chosen.physics:
+            # the physics falls to the clipping, not the data problems tested beside it
+            # (where the clipped peaks dominate the held-out misfit, physics that absorbs
+            # them beat every correction there): each decisive one, the linear model
+            # fitted to the drives corrected for it, competes with the clipping on its own
+            stands = _data_beside_clipping(base, fits, clipped, coupling, mass_bounds)
+            if stands is not None:
+                kept, words = stands
+                say("  " + words)
         chosen = chosen if clip_note[0] else kept
         warnings.append(data_checks.DataWarning("clipping_explains", clip_note[1]))
     ride = None
@@ -1884,6 +1905,20 @@ def _clean_stretches(part: GreyBoxData, times: np.ndarray) -> tuple[list[GreyBox
     return out, sum(c.duration_s - edges_s for c in out) / part.duration_s
 
 
+def _clean_fit_parts(prepared: Sequence[_Prepared], clipped: dict[str, np.ndarray]
+                     ) -> list[GreyBoxData] | None:
+    """The stretches of every drive's fit part away from the clipped readings
+    (:func:`_clean_stretches`); None where one drive keeps less than
+    :data:`CLEAN_SHARE_MIN` of its fit part."""
+    parts = []
+    for p in prepared:
+        clean, share = _clean_stretches(p.fit, clipped.get(p.drive.label, np.empty(0)))
+        if share < CLEAN_SHARE_MIN:
+            return None
+        parts += clean
+    return parts
+
+
 def _fit_away_from_clipping(effects: tuple[str, ...], fit: _Fit, coupling: bool,
                             clipped: dict[str, np.ndarray],
                             mass_bounds_kg: tuple[float, float] | None) -> _Fit | None:
@@ -1892,12 +1927,9 @@ def _fit_away_from_clipping(effects: tuple[str, ...], fit: _Fit, coupling: bool,
     the clipping means leaving out what it corrupts, from the fit (where it biases the
     linear model's values) as much as from the comparison. None where too little is left
     (less than :data:`CLEAN_SHARE_MIN` of a drive's fit part) or the fit fails."""
-    parts = []
-    for p in fit.prepared:
-        clean, share = _clean_stretches(p.fit, clipped.get(p.drive.label, np.empty(0)))
-        if share < CLEAN_SHARE_MIN:
-            return None
-        parts += clean
+    parts = _clean_fit_parts(fit.prepared, clipped)
+    if parts is None:
+        return None
     try:
         return _grey_fit(effects, fit.prepared, coupling, _initial_from(fit), 2,
                          mass_bounds_kg, fit.data, fit_parts=parts)
@@ -1927,7 +1959,8 @@ def _clipping_competes(base: _Fit, chosen: _Fit, clipped: dict[str, np.ndarray]
                        "with a larger measuring range")
     t = paired_block_t(eb[~near], ec[~near])
     gain = 1.0 - float(np.mean(ec[~near] ** 2) / np.mean(eb[~near] ** 2))
-    found = " + ".join(e.replace("_", " ") for e in chosen.effects)
+    found = (" + ".join(e.replace("_", " ") for e in chosen.effects)
+             or f"the model corrected for the {_DATA_LABEL[chosen.data.kind]}")
     head = (f"{100 * share_e:.0f} % of the linear model's held-out misfit lies within "
             f"{CLIP_REACH_S:g} s of clipped readings ({100 * share_t:.0f} % of the time)")
     if t >= 3.0 and gain > 0:
@@ -1938,18 +1971,52 @@ def _clipping_competes(base: _Fit, chosen: _Fit, clipped: dict[str, np.ndarray]
                    "suspension. Record again with a larger measuring range")
 
 
-def _residual_delay_s(fit: _Fit, substeps: int, with_std: bool = False):
+def _data_beside_clipping(base: _Fit, fits: Sequence[_Fit], clipped: dict[str, np.ndarray],
+                          coupling: bool, mass_bounds_kg: tuple[float, float] | None
+                          ) -> tuple[_Fit, str] | None:
+    """Of the linear models fitted to drives corrected for a decisive data problem (every
+    estimate of its chain at least MIN_Z std from none), the one that predicts the held-out
+    data away from the clipped readings best, where it beats the uncorrected linear model
+    there (:func:`_clipping_competes`; both fitted again away from the clipped readings,
+    as the physics is); with its words. None where none does."""
+    cands = [f for f in fits if not f.physics and f.data is not None
+             and all(h.z >= MIN_Z for h in f.data.chain)]
+    if not cands:
+        return None
+    away = map_threads(lambda f: _fit_away_from_clipping((), f, coupling, clipped,
+                                                         mass_bounds_kg), [base, *cands])
+    ref = away[0] or base
+    near = _near_clipping(ref.runs, clipped)
+    best = None
+    for f, a in zip(cands, away[1:], strict=True):
+        a = a or f
+        note = _clipping_competes(ref, a, clipped)
+        if note is None or not note[0]:
+            continue
+        mse = float(np.mean(a.candidate.residual_validation[~near] ** 2))
+        if best is None or mse < best[0]:
+            best = (mse, f, note[1])
+    return None if best is None else (best[1], best[2])
+
+
+def _residual_delay_s(fit: _Fit, substeps: int, with_std: bool = False,
+                      clipped: dict[str, np.ndarray] | None = None):
     """Delay of the recorded body acceleration against the fitted model's simulation on
-    the fit part of every drive (least squares on ``m(t) = s(t - tau)``, linearised).
+    the fit part of every drive (least squares on ``m(t) = s(t - tau)``, linearised),
+    leaving out the samples near ``clipped`` readings (times by drive label): a clipped
+    peak's misfit is not a delay, and where it dominates the residual it hides one.
 
     With ``with_std``, ``(tau, std)``: the least-squares std inflated 3x for the residual's
     correlation in time (a pre-selection only: held-out data decide)."""
     num = den = 0.0
     parts = []
-    for sf, measured, residual, _t in validation_runs(fit.result, [p.fit for p in fit.prepared],
-                                                      substeps=substeps):
+    runs = validation_runs(fit.result, [p.fit for p in fit.prepared], substeps=substeps)
+    for (sf, measured, residual, t), p in zip(runs, fit.prepared, strict=True):
         sim = measured - residual
         ds = np.gradient(sim) * sf.sample_rate_hz
+        if clipped is not None:
+            keep = ~_near(clipped.get(p.drive.label, np.empty(0)), t)
+            residual, ds = residual[keep], ds[keep]
         num += float(residual @ ds)
         den += float(ds @ ds)
         parts.append((residual, ds))
@@ -1962,11 +2029,12 @@ def _residual_delay_s(fit: _Fit, substeps: int, with_std: bool = False):
     return tau, std
 
 
-def _time_domain_offset(base: _Fit) -> DataHypothesis | None:
-    """A channel time offset estimated against the linear model's simulation, for when
-    the transmissibilities give none (the identification refused the pair: a large
-    offset makes the drives look like two different cars)."""
-    tau, std = _residual_delay_s(base, substeps=2, with_std=True)
+def _time_domain_offset(base: _Fit, clipped: dict[str, np.ndarray] | None = None
+                        ) -> DataHypothesis | None:
+    """A channel time offset estimated against the linear model's simulation (away from
+    ``clipped`` readings), for when the transmissibilities give none (the identification
+    refused the pair: a large offset makes the drives look like two different cars)."""
+    tau, std = _residual_delay_s(base, substeps=2, with_std=True, clipped=clipped)
     if abs(tau) >= MIN_TIME_OFFSET_S and abs(tau) >= MIN_Z * std:
         return DataHypothesis("channel_time_offset", tau, std)
     return None
