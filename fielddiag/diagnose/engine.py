@@ -1417,6 +1417,7 @@ def _diagnose(
     hypotheses = []
     # the clipped readings (times by drive): a delay is measured away from them
     clipped = _clipped_times(drives)
+    any_clipped = any(t.size for t in clipped.values())
     gravity = gain_from_gravity(drives) if mode == "pair" else None
     if fd is not None:
         lin = fd.linear or {_LINEAR_SI[k]: v for k, v in base.candidate.values.items()
@@ -1584,8 +1585,7 @@ def _diagnose(
             for _ in range(5):
                 on = [_prepare(d, band, rate, holdout_fraction)
                       for d in correct_drives(drives, hyp)]
-                clean = _clean_fit_parts(on, clipped) if any(
-                    t.size for t in clipped.values()) else None
+                clean = _clean_fit_parts(on, clipped) if any_clipped else None
                 if clean is None:
                     trial = grey((), on, _initial_from(base), hyp)
                 else:
@@ -1642,7 +1642,7 @@ def _diagnose(
         say(f"  with the {_DATA_LABEL[chosen.data.kind]} corrected: "
             f"{' + '.join(chosen.physics)}")
     clip_note = None
-    if chosen.physics and any(t.size for t in clipped.values()):
+    if chosen.physics and any_clipped:
         # the physics against the clipping: both models fitted again away from the
         # clipped readings, and compared there (where the stretches left are too short,
         # the fits on the whole drives are compared away from them)
@@ -1652,7 +1652,7 @@ def _diagnose(
             cost=_cost)
         pair = away if all(f is not None for f in away) else (base, chosen)
         clip_note = _clipping_competes(*pair, clipped)
-    elif chosen is not base and any(t.size for t in clipped.values()):
+    elif chosen is not base and any_clipped:
         clip_note = _clipping_competes(base, chosen, clipped)
     if clip_note is not None:
         say("  " + clip_note[1])
@@ -1985,14 +1985,14 @@ def _data_beside_clipping(base: _Fit, fits: Sequence[_Fit], clipped: dict[str, n
         return None
     away = map_threads(lambda f: _fit_away_from_clipping((), f, coupling, clipped,
                                                          mass_bounds_kg), [base, *cands])
-    ref = away[0] or base
-    near = _near_clipping(ref.runs, clipped)
     best = None
     for f, a in zip(cands, away[1:], strict=True):
-        a = a or f
+        # both refitted away from the clipping, or (where either cannot be) both as fitted
+        ref, a = (away[0], a) if away[0] is not None and a is not None else (base, f)
         note = _clipping_competes(ref, a, clipped)
         if note is None or not note[0]:
             continue
+        near = _near_clipping(ref.runs, clipped)
         mse = float(np.mean(a.candidate.residual_validation[~near] ** 2))
         if best is None or mse < best[0]:
             best = (mse, f, note[1])
