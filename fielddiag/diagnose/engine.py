@@ -1540,6 +1540,16 @@ def _diagnose(
                         f"improve held-out data once the drives are corrected (t = "
                         f"{t_left:.1f}); not fitted to them")
                     refit = []
+            if hyp.prior is None and len(physics_fit.effects) > 1:
+                # part of the chosen physics may be there only to absorb the data problem
+                # (a hysteretic spring takes up a late channel's lag): each part of it is
+                # fitted to the corrected drives too, and competes with the whole
+                for e in physics_fit.effects:
+                    part = tuple(x for x in physics_fit.effects if x != e)
+                    if (any(EFFECTS[x].n_states for x in part)
+                            and signature_left(part, on) < STATEFUL_SCREEN_T):
+                        continue
+                    refit.append((part, on, _initial_from(physics_fit), hyp))
             tasks = list(refit)
             if hyp.prior is None:
                 # the physics that looks like the data problem competes on top of the
