@@ -17,8 +17,9 @@ Uncertainty of a channel's level, per drive (all in m/s^2, added in quadrature):
   of the number of windows (slow motion, road grade, noise);
 * a drifting bias: the trend's change over the drive divided by sqrt(12) (where the drift
   started is not known: the level of the drive's middle is used);
-* clipped readings: their share of the samples times the distance of the clipping level
-  from the channel's level, over 3 (the excess beyond full scale that was lost);
+* clipped readings: the excess beyond full scale that they lost is estimated from the
+  readings just inside it and added back, with half of it as its std
+  (:func:`clipped_excess_mps2`);
 * and, for the ratio between drives, the bias change of the sensor between the drives:
   :data:`BIAS_CHANGE_STD_MPS2` (a MEMS sensor's offset moves 0.1-0.5 mg per kelvin; a few
   kelvin between the drives).
@@ -38,7 +39,7 @@ from fielddiag.diagnose.data_checks import clipped_mask
 from fielddiag.units import GRAVITY_MPS2
 
 __all__ = ["BIAS_CHANGE_STD_MPS2", "GRAVITY_BAND", "ChannelGain", "GravityGain",
-           "GravityLevel", "gain_from_gravity", "gravity_level"]
+           "GravityLevel", "clipped_excess_mps2", "gain_from_gravity", "gravity_level"]
 
 #: Standard deviation of a sensor's bias change between two drives [m/s^2] (2 mg).
 BIAS_CHANGE_STD_MPS2 = 0.02
@@ -53,6 +54,9 @@ MIN_WINDOWS = 4
 #: :data:`UNCHANGED_Z`), the ratio is the moved channel's change with its own std (the
 #: other's reading, uninformative where its level is noisy or clipped, is not added).
 SINGLE_CHANNEL_Z = 3.0
+#: Readings just inside full scale, per clipped reading, that the clipped tail's scale is
+#: read from (:func:`clipped_excess_mps2`).
+TAIL_READINGS_PER_CLIPPED = 4
 UNCHANGED_Z = 2.0
 
 
@@ -113,13 +117,56 @@ def gravity_level(time_s: np.ndarray, values_mps2: np.ndarray) -> GravityLevel |
     scatter = float(np.std(means - (intercept + slope * (centres - centres.mean())),
                            ddof=2)) if means.size > 2 else 0.0
     drift = float(slope * duration)
-    clipped = clipped_mask(x)
-    clip_term = 0.0
-    if clipped.any():
-        at = x[clipped]
-        clip_term = float(clipped.mean()) * float(np.max(np.abs(at - level))) / 3.0
+    lost, clip_term = clipped_excess_mps2(x)
     std = math.sqrt(scatter**2 / means.size + drift**2 / 12.0 + clip_term**2)
-    return GravityLevel(level, std, drift)
+    return GravityLevel(level + lost, std, drift)
+
+
+def clipped_excess_mps2(values_mps2: np.ndarray) -> tuple[float, float]:
+    """What clipping took from a channel's mean, and its standard deviation [m/s^2].
+
+    A clipped reading sits at full scale ``L`` while the acceleration went beyond it. Per
+    clipped side, the tail beyond ``L`` is taken as exponential, its scale read off the
+    readings just inside: when ``n`` readings sit at ``L`` and ``k`` lie within ``w`` of it,
+    the tail's scale is ``w / ln(1 + k / n)`` (the share beyond ``L`` of the tail from
+    ``L - w`` on is ``n / (n + k)``), and that is each clipped reading's expected excess.
+    The std is half of each side's estimate (a Gaussian tail has less excess than an
+    exponential one, a heavier tail more): on simulated clipped wheel channels (0.4-1.8 %
+    of the samples at full scale) the estimate was 8-32 % of the mean actually lost away
+    from it, and the sides' errors cancel in part.
+
+    Parameters
+    ----------
+    values_mps2 : ndarray
+        One channel's readings [m/s^2].
+
+    Returns
+    -------
+    (float, float)
+        The mean's shift to add back (positive where the upper side lost more) and its std;
+        ``(0, 0)`` without clipping.
+    """
+    x = np.asarray(values_mps2, float)
+    clipped = clipped_mask(x)
+    if not clipped.any() or clipped.all():
+        return 0.0, 0.0
+    tol = 1e-9 * float(x.max() - x.min())
+    shift = var = 0.0
+    for side, full_scale in ((1.0, float(x.max())), (-1.0, float(x.min()))):
+        at = np.abs(x - full_scale) <= tol
+        if not (clipped & at).any():
+            continue
+        n_at = int(at.sum())
+        inside = side * (full_scale - x[~at])
+        k = min(TAIL_READINGS_PER_CLIPPED * n_at, inside.size // 2)
+        if k < 1:
+            continue
+        width = float(np.partition(inside, k)[k])
+        scale = width / math.log1p(k / n_at)
+        lost = n_at * scale / x.size
+        shift += side * lost
+        var += (0.5 * lost) ** 2
+    return shift, math.sqrt(var)
 
 
 @dataclass(frozen=True)

@@ -10,6 +10,7 @@ import pytest
 from fielddiag.diagnose.data_hypotheses import GAIN_CHANGE, combine_gain
 from fielddiag.diagnose.gravity_gain import (
     BIAS_CHANGE_STD_MPS2,
+    clipped_excess_mps2,
     gain_from_gravity,
     gravity_level,
 )
@@ -130,3 +131,28 @@ def test_combining_agreeing_and_disagreeing_estimates():
     alone = combine_gain((0.03, 0.005), None)
     assert (alone.value, alone.std, alone.evidence) == (0.03, 0.005, "")
     assert combine_gain(None, None) is None
+
+
+@pytest.mark.parametrize("seed", [3, 4, 5])
+def test_what_clipping_took_from_the_mean_is_added_back(seed):
+    """A hub's acceleration with heavy tails (road impacts), clipped at a full scale that
+    1 % of the readings exceed, mostly on the upper side: the mean's loss is estimated from
+    the readings just inside full scale, within its std, and the clipped channel's level
+    comes back to the unclipped one."""
+    from scipy import signal
+
+    rng = np.random.default_rng(seed)
+    t = np.arange(int(120 * FS_HZ)) / FS_HZ
+    sos = signal.butter(2, 20.0, fs=FS_HZ, output="sos")
+    motion = signal.sosfiltfilt(sos, rng.laplace(0.0, 1.0, t.size))
+    true = GRAVITY_MPS2 + 8.0 * motion / motion.std()
+    full_scale = float(np.quantile(np.abs(true), 0.99))
+    clipped = np.clip(true, -full_scale, full_scale)
+    lost = true.mean() - clipped.mean()
+    shift, std = clipped_excess_mps2(clipped)
+    assert lost > 0.02  # 0.2 % of g: a fifth of the smallest gain change to report
+    assert shift == pytest.approx(lost, rel=0.3)
+    assert abs(shift - lost) < 2 * std
+    lev = gravity_level(t, clipped)
+    assert abs(lev.level_mps2 - true.mean()) < 0.3 * lost + 3 * np.std(true) / np.sqrt(t.size)
+    assert clipped_excess_mps2(true) == (0.0, 0.0)
