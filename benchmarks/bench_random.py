@@ -352,6 +352,10 @@ def main(argv: list[str] | None = None) -> int:
                     help="override every drive's duration [s] (quick runs)")
     ap.add_argument("--families", default=None,
                     help="comma-separated effect families to draw from (default: all)")
+    ap.add_argument("--with", dest="with_nuisance", default=None,
+                    choices=("gain_change", "time_offset", "bias_drift", "clipping"),
+                    help="keep only the cases (from consecutive seeds) whose draw has this "
+                         "data problem: N of them (a subgroup measured at drawn durations)")
     args = ap.parse_args(argv)
     families = tuple(args.families.split(",")) if args.families else None
     if args.tables is not None:
@@ -379,19 +383,21 @@ def main(argv: list[str] | None = None) -> int:
     head = _git_head()
     print(__doc__.split("Per-case progress")[0].rstrip())
     print()
-    print(f"Run: seed {args.seed}, N = {args.n} (seeds {args.seed}-{args.seed + args.n - 1}), "
+    seeds = _seeds(args.seed, args.n, families, args.with_nuisance)
+    print(f"Run: seed {args.seed}, N = {args.n} (seeds {seeds[0]}-{seeds[-1]}), "
           f"{args.jobs} worker(s), fielddiag {__version__} at {head}"
           + (f", every drive {args.duration:g} s" if args.duration else "")
-          + (f", families {', '.join(families)} only" if families else ""))
+          + (f", families {', '.join(families)} only" if families else "")
+          + (f", only cases with a {args.with_nuisance}" if args.with_nuisance else ""))
     print(f"Effects the diagnosis tries: {', '.join(diagnosis_effects())}")
     print(rc.METHOD)
     print(flush=True)
-    seeds = [args.seed + i for i in range(args.n)]
     rows: list[dict] = []
     t0 = time.perf_counter()
     meta = {"seed": args.seed, "n": args.n, "jobs": args.jobs, "git_head": head,
             "fielddiag_version": __version__, "duration_override_s": args.duration,
             "families": list(families) if families else None,
+            "with_nuisance": args.with_nuisance,
             "method": rc.METHOD, "library": list(diagnosis_effects())}
 
     def done(i: int, row: dict) -> None:
@@ -421,6 +427,21 @@ def main(argv: list[str] | None = None) -> int:
     if args.out is not None:
         print(f"  rows saved to {args.out}")
     return 0
+
+
+def _seeds(first: int, n: int, families: tuple[str, ...] | None,
+           nuisance: str | None) -> list[int]:
+    """``n`` consecutive seeds from ``first``; with ``nuisance``, the first ``n`` of them
+    whose case draws that data problem (the draw is cheap: nothing is simulated)."""
+    if nuisance is None:
+        return [first + i for i in range(n)]
+    out: list[int] = []
+    s = first
+    while len(out) < n:
+        if rc.draw_case(s, families=families).nuisance(nuisance) is not None:
+            out.append(s)
+        s += 1
+    return out
 
 
 def _save(path: Path, payload: dict) -> None:

@@ -234,6 +234,19 @@ def test_tables_from_rows() -> None:
     assert "cases that raised: 1" in text and "seed 1 (x): E: e" in text
 
 
+def test_a_subgroup_with_one_data_problem_is_drawn_from_consecutive_seeds() -> None:
+    """``--with time_offset``: the first N consecutive seeds whose draw has a late channel,
+    every one of them (and no seed skipped that has one)."""
+    import bench_random
+
+    seeds = bench_random._seeds(500, 6, None, "time_offset")
+    assert len(seeds) == 6 and seeds == sorted(seeds) and seeds[0] >= 500
+    has = [s for s in range(500, seeds[-1] + 1)
+           if rc.draw_case(s).nuisance("time_offset") is not None]
+    assert has == seeds
+    assert bench_random._seeds(500, 3, None, None) == [500, 501, 502]
+
+
 def test_same_physics_outside_the_library_is_named_or_unexplained() -> None:
     lib = ("coulomb_friction", "hysteretic_spring", "bouc_wen")
     dahl = [("dahl_friction", {"friction_force_n": 50.0})]
