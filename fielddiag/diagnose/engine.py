@@ -40,6 +40,7 @@ from fielddiag.blas import single_threaded_blas
 from fielddiag.diagnose import data_checks
 from fielddiag.diagnose.data_hypotheses import (
     DECISIVE_Z,
+    GAIN_CHANGE,
     MIN_T_SIGNIFICANT,
     MIN_TIME_OFFSET_S,
     MIN_Z,
@@ -1634,6 +1635,16 @@ def _diagnose(
     sel = select_model(base.candidate, [f.candidate for f in fits[1:] if f.data is None
                                         or all(h.z >= MIN_Z for h in f.data.chain)])
     chosen = next(f for f in fits if f.candidate is sel.chosen)
+    gain = _decisive_gain_elsewhere(chosen, physics_fit, fits)
+    if gain is not None:
+        # a decisive gain change was tested on the physics first chosen, and the selection
+        # went on to other physics (a top mount beside it): the gain is the sensor's, not
+        # the physics', so the chosen physics is fitted to the drives corrected for it too
+        on = _with_ride_height([_prepare(d, band, rate, holdout_fraction)
+                                for d in correct_drives(drives, gain)], chosen.restored)
+        refit = grey(chosen.physics, on, _initial_from(chosen), gain)
+        if refit is not None:
+            fits.append(refit)
     chosen = _decisive_data_problem(chosen, fits)
     twin = _physics_twin(chosen, fits)
     undecided: frozenset[str] = frozenset()
@@ -1813,6 +1824,22 @@ def _decisive_data_problem(chosen: _Fit, fits: Sequence[_Fit]) -> _Fit:
 #: when one predicts the held-out data better by two standard errors of the difference
 #: (the usual 95 % level); a closer call keeps the better one and names the other.
 TWIN_T = 2.0
+
+
+def _decisive_gain_elsewhere(chosen: _Fit, physics_fit: _Fit, fits: Sequence[_Fit]
+                             ) -> DataHypothesis | None:
+    """A gain change estimated decisively and not made worse by its correction on the
+    physics it was tested with (``physics_fit``), where the selection chose other physics
+    that was not fitted to the corrected drives: the gain to fit that physics with."""
+    if chosen.data is not None or not chosen.physics or chosen.physics == physics_fit.physics:
+        return None
+    for f in fits:
+        if (f.data is not None and f.data.prior is None and f.data.kind == GAIN_CHANGE
+                and f.data.z >= DECISIVE_Z and f.physics == physics_fit.physics
+                and f.restored == physics_fit.restored and f.candidate.physical
+                and compare(physics_fit.candidate, f.candidate).t > -MIN_T_SIGNIFICANT):
+            return f.data
+    return None
 
 
 def _physics_twin(chosen: _Fit, fits: Sequence[_Fit]) -> tuple[_Fit, str, str] | None:

@@ -139,3 +139,32 @@ def test_a_gain_on_top_of_a_delay_is_undone_in_order():
         assert np.max(np.abs(d.body_accel_mps2 - true)[100:-100]) < 3e-3
     assert residual_scale(both, 1, 2) == pytest.approx(1.04)
     assert residual_scale(both, 0, 2) == 1.0
+
+
+def test_a_decisive_gain_is_carried_to_physics_chosen_after_it_was_tested():
+    """The gain was tested on the physics first chosen (friction); the selection then took
+    friction + a top mount, never fitted to the corrected drives: the gain is handed on,
+    unless its correction made the first physics predict worse, or it is not decisive."""
+    from fielddiag.diagnose.engine import _decisive_gain_elsewhere, _Fit
+    from fielddiag.diagnose.selection import CandidateFit
+
+    rng = np.random.default_rng(0)
+    noise = rng.normal(0.0, 1.0, 3000)
+
+    def fit(effects, scale, data=None):
+        # residuals: the same noise, scaled, and a little of their own
+        own = rng.normal(0.0, 0.05, noise.size)
+        cand = CandidateFit(effects, {}, {}, 0.1, 0.1, scale * noise + own, len(effects) + 3)
+        return _Fit(effects + ((data.kind,) if data else ()), None, cand, [], (), data)
+
+    gain = DataHypothesis(GAIN_CHANGE, -0.037, 0.002)
+    friction = fit(("coulomb_friction",), 1.0)
+    corrected = fit(("coulomb_friction",), 0.99, gain)
+    chosen = fit(("coulomb_friction", "series_top_mount"), 0.9)
+    assert _decisive_gain_elsewhere(chosen, friction, [friction, corrected, chosen]) is gain
+    # the physics it was tested on is the chosen one: the usual rule decides
+    assert _decisive_gain_elsewhere(friction, friction, [friction, corrected]) is None
+    worse = fit(("coulomb_friction",), 1.2, gain)
+    assert _decisive_gain_elsewhere(chosen, friction, [friction, worse, chosen]) is None
+    weak = fit(("coulomb_friction",), 0.99, DataHypothesis(GAIN_CHANGE, -0.005, 0.002))
+    assert _decisive_gain_elsewhere(chosen, friction, [friction, weak, chosen]) is None
