@@ -1645,7 +1645,10 @@ def _diagnose(
         refit = grey(chosen.physics, on, _initial_from(chosen), gain)
         if refit is not None:
             fits.append(refit)
-    chosen = _decisive_data_problem(chosen, fits)
+    chosen, rival_note = _decisive_data_problem(chosen, fits)
+    if rival_note is not None:
+        say("  " + rival_note)
+        warnings.append(data_checks.DataWarning("data_problem_or_physics", rival_note))
     twin = _physics_twin(chosen, fits)
     undecided: frozenset[str] = frozenset()
     if twin is not None:
@@ -1799,9 +1802,17 @@ _DATA_LABEL = {
 }
 
 
-def _decisive_data_problem(chosen: _Fit, fits: Sequence[_Fit]) -> _Fit:
+def _decisive_data_problem(chosen: _Fit, fits: Sequence[_Fit]) -> tuple[_Fit, str | None]:
     """A data problem estimated decisively (:data:`~.data_hypotheses.DECISIVE_Z`), on top
-    of what the chosen model corrects, that also predicts the held-out data better."""
+    of what the chosen model corrects, that also predicts the held-out data better; and
+    words for a late channel that physics predicts as well (then not chosen).
+
+    A gain change's estimate rests on the gravity levels too, which no suspension moves; a
+    delay's rests on the residual's phase, which any lag the model leaves out moves alike
+    (hysteresis, a top mount). So a late channel is decisive only where it also predicts
+    better (t >= :data:`MIN_T_SIGNIFICANT`) than the best physics added to the chosen
+    model, whether or not that physics passed the selection itself."""
+    note = None
     for f in fits:
         # one more data problem on top of what the chosen model corrects already
         if (f.data is None or f.data.prior != chosen.data or f.physics != chosen.physics
@@ -1814,10 +1825,36 @@ def _decisive_data_problem(chosen: _Fit, fits: Sequence[_Fit]) -> _Fit:
             # data hardly tell; a gain is what breaks |T| -> 1 below the body resonance,
             # which no passive suspension does: decisive, unless it predicts worse
             if cmp.t > -MIN_T_SIGNIFICANT:
-                return f
+                return f, None
         elif cmp.t >= MIN_T_SIGNIFICANT and cmp.relative_gain > 0:
-            return f
-    return chosen
+            rival = _physics_rival(chosen, f, fits)
+            if rival is None:
+                return f, None
+            t = compare(rival.candidate, f.candidate).t
+            names = " + ".join(e.replace("_", " ") for e in rival.physics
+                               if e not in chosen.physics)
+            alike = ("predict the held-out data alike" if t > -TWIN_T else
+                     f"the {names} predicts the held-out data better, though not by "
+                     "enough to be reported")
+            note = (f"a {_DATA_LABEL[f.data.kind]} ({_data_size(f.data)}) and a {names}: "
+                    f"{alike} (t = {t:.1f} for the data problem). A delay read off the "
+                    "residual's phase is also what a lag of the suspension left out of "
+                    "the model shows, so neither is reported. Check the recording (both "
+                    "channels on one DAQ clock with the same filter) to rule the data "
+                    "problem out")
+    return chosen, note
+
+
+def _physics_rival(chosen: _Fit, f: _Fit, fits: Sequence[_Fit]) -> _Fit | None:
+    """The physics added to ``chosen`` that predicts best, where the data problem ``f``
+    does not predict better than it (t < :data:`MIN_T_SIGNIFICANT`); else None."""
+    rivals = [g for g in fits if g.data is None and g.candidate.physical
+              and set(g.physics) > set(chosen.physics)
+              and compare(chosen.candidate, g.candidate).t > 0.0]
+    if not rivals:
+        return None
+    best = min(rivals, key=lambda g: g.candidate.mse_validation)
+    return best if compare(best.candidate, f.candidate).t < MIN_T_SIGNIFICANT else None
 
 
 #: Two explanations of equal size (a top mount's lag, a late channel) are told apart only

@@ -168,3 +168,35 @@ def test_a_decisive_gain_is_carried_to_physics_chosen_after_it_was_tested():
     assert _decisive_gain_elsewhere(chosen, friction, [friction, worse, chosen]) is None
     weak = fit(("coulomb_friction",), 0.99, DataHypothesis(GAIN_CHANGE, -0.005, 0.002))
     assert _decisive_gain_elsewhere(chosen, friction, [friction, weak, chosen]) is None
+
+
+def test_a_late_channel_that_physics_predicts_as_well_is_not_decisive():
+    """A delay's estimate rests on the residual's phase, which a lag left out of the model
+    (hysteresis, a top mount) moves alike: a decisive late channel is chosen over the
+    linear model only where it also predicts better than the best physics added to it;
+    else neither is reported and the user is told why. A gain change keeps its rule."""
+    from fielddiag.diagnose.engine import _decisive_data_problem, _Fit
+    from fielddiag.diagnose.selection import CandidateFit
+
+    rng = np.random.default_rng(1)
+    noise = rng.normal(0.0, 1.0, 3000)
+
+    def fit(effects, scale, data=None):
+        own = rng.normal(0.0, 0.05, noise.size)
+        cand = CandidateFit(effects, {}, {}, 0.1, 0.1, scale * noise + own, len(effects) + 3)
+        return _Fit(effects + ((data.kind,) if data else ()), None, cand, [], (), data)
+
+    late = DataHypothesis(TIME_OFFSET, 4.9e-4, 4e-5)
+    linear = fit((), 1.0)
+    delayed = fit((), 0.99, late)
+    hysteresis = fit(("bouc_wen",), 0.99)
+    chosen, note = _decisive_data_problem(linear, [linear, delayed, hysteresis])
+    assert chosen is linear
+    assert "0.49 +- 0.04 ms" in note and "bouc wen" in note and "neither is reported" in note
+    # a delay that predicts better than the physics too stays decisive
+    sharper = fit((), 0.95, late)
+    chosen, note = _decisive_data_problem(linear, [linear, sharper, hysteresis])
+    assert chosen is sharper and note is None
+    # without physics that improves on the linear model, as before
+    chosen, note = _decisive_data_problem(linear, [linear, delayed, fit(("bouc_wen",), 1.01)])
+    assert chosen is delayed and note is None
