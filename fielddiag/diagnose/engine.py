@@ -1824,7 +1824,7 @@ def _decisive_data_problem(chosen: _Fit, fits: Sequence[_Fit]) -> tuple[_Fit, st
             # the linear model absorbs a gain in its mass (the bias it causes), so held-out
             # data hardly tell; a gain is what breaks |T| -> 1 below the body resonance,
             # which no passive suspension does: decisive, unless it predicts worse
-            if cmp.t > -MIN_T_SIGNIFICANT:
+            if _gain_stands(f.data, cmp.t):
                 return f, None
         elif cmp.t >= MIN_T_SIGNIFICANT and cmp.relative_gain > 0:
             rival = _physics_rival(chosen, f, fits)
@@ -1865,18 +1865,37 @@ TWIN_T = 2.0
 
 def _decisive_gain_elsewhere(chosen: _Fit, physics_fit: _Fit, fits: Sequence[_Fit]
                              ) -> DataHypothesis | None:
-    """A gain change estimated decisively and not made worse by its correction on the
-    physics it was tested with (``physics_fit``), where the selection chose other physics
-    that was not fitted to the corrected drives: the gain to fit that physics with."""
-    if chosen.data is not None or not chosen.physics or chosen.physics == physics_fit.physics:
+    """A gain change estimated decisively, on top of what the chosen model corrects, and
+    not made worse by its correction on the physics it was tested with (``physics_fit``),
+    where the selection chose other physics that was not fitted to the drives corrected
+    for it (a top mount beside the physics; a part of it, once a late channel is
+    corrected): the gain to fit that physics with."""
+    if not chosen.physics or chosen.physics == physics_fit.physics:
+        return None
+    # the physics it was tested with, corrected for what the chosen model corrects
+    ref = physics_fit if chosen.data is None else next(
+        (g for g in fits if g.data == chosen.data and g.physics == physics_fit.physics
+         and g.restored == physics_fit.restored), None)
+    if ref is None:
         return None
     for f in fits:
-        if (f.data is not None and f.data.prior is None and f.data.kind == GAIN_CHANGE
-                and f.data.z >= DECISIVE_Z and f.physics == physics_fit.physics
-                and f.restored == physics_fit.restored and f.candidate.physical
-                and compare(physics_fit.candidate, f.candidate).t > -MIN_T_SIGNIFICANT):
+        if (f.data is not None and f.data.prior == chosen.data
+                and f.data.kind == GAIN_CHANGE and f.data.z >= DECISIVE_Z
+                and f.physics == physics_fit.physics and f.restored == physics_fit.restored
+                and f.candidate.physical
+                and not any(g.data == f.data and g.physics == chosen.physics for g in fits)
+                and _gain_stands(f.data, compare(ref.candidate, f.candidate).t)):
             return f.data
     return None
+
+
+def _gain_stands(gain: DataHypothesis, t: float) -> bool:
+    """Whether a decisive gain change stands against held-out data whose paired-block
+    ``t`` (positive: the correction predicts better) says little either way. Read off the
+    gravity levels too (``evidence``), a measurement no suspension moves, it falls only
+    where its correction predicts worse by two standard errors (:data:`TWIN_T`); from the
+    transmissibility alone, by one."""
+    return t > (-TWIN_T if gain.evidence else -MIN_T_SIGNIFICANT)
 
 
 def _physics_twin(chosen: _Fit, fits: Sequence[_Fit]) -> tuple[_Fit, str, str] | None:

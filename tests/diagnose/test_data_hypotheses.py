@@ -168,6 +168,20 @@ def test_a_decisive_gain_is_carried_to_physics_chosen_after_it_was_tested():
     assert _decisive_gain_elsewhere(chosen, friction, [friction, worse, chosen]) is None
     weak = fit(("coulomb_friction",), 0.99, DataHypothesis(GAIN_CHANGE, -0.005, 0.002))
     assert _decisive_gain_elsewhere(chosen, friction, [friction, weak, chosen]) is None
+    # on top of a late channel: hysteresis + damping was chosen first, the damping alone
+    # with the delay corrected was chosen at last; the gain tested on top of the delay (on
+    # hysteresis + damping) is handed on to the damping with the delay corrected
+    late = DataHypothesis(TIME_OFFSET, 2.5e-3, 2e-4)
+    both = fit(("hysteretic_spring", "quadratic_damping"), 1.0)
+    both_late = fit(("hysteretic_spring", "quadratic_damping"), 0.95, late)
+    on_top = DataHypothesis(GAIN_CHANGE, 0.011, 0.0024, prior=late)
+    both_gain = fit(("hysteretic_spring", "quadratic_damping"), 0.95, on_top)
+    damping_late = fit(("quadratic_damping",), 0.95, late)
+    fits = [both, both_late, both_gain, damping_late]
+    assert _decisive_gain_elsewhere(damping_late, both, fits) is on_top
+    # ... once: not when the damping has been fitted with it already
+    done = fit(("quadratic_damping",), 0.95, on_top)
+    assert _decisive_gain_elsewhere(damping_late, both, [*fits, done]) is None
 
 
 def test_a_late_channel_that_physics_predicts_as_well_is_not_decisive():
