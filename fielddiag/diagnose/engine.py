@@ -1827,10 +1827,10 @@ def _decisive_data_problem(chosen: _Fit, fits: Sequence[_Fit]) -> tuple[_Fit, st
             if _gain_stands(f.data, cmp.t):
                 return f, None
         elif cmp.t >= MIN_T_SIGNIFICANT and cmp.relative_gain > 0:
-            rival = _physics_rival(chosen, f, fits)
-            if rival is None:
+            found = _physics_rival(chosen, f, fits)
+            if found is None:
                 return f, None
-            t = compare(rival.candidate, f.candidate).t
+            rival, t = found
             names = " + ".join(e.replace("_", " ") for e in rival.physics
                                if e not in chosen.physics)
             alike = ("predict the held-out data alike" if t > -TWIN_T else
@@ -1845,16 +1845,19 @@ def _decisive_data_problem(chosen: _Fit, fits: Sequence[_Fit]) -> tuple[_Fit, st
     return chosen, note
 
 
-def _physics_rival(chosen: _Fit, f: _Fit, fits: Sequence[_Fit]) -> _Fit | None:
-    """The physics added to ``chosen`` that predicts best, where the data problem ``f``
-    does not predict better than it (t < :data:`MIN_T_SIGNIFICANT`); else None."""
+def _physics_rival(chosen: _Fit, f: _Fit, fits: Sequence[_Fit]
+                   ) -> tuple[_Fit, float] | None:
+    """The physics added to ``chosen`` that predicts best, with the paired-block t of the
+    data problem ``f`` against it, where ``f`` does not predict better than it
+    (t < :data:`MIN_T_SIGNIFICANT`); else None."""
     rivals = [g for g in fits if g.data is None and g.candidate.physical
               and set(g.physics) > set(chosen.physics)
               and compare(chosen.candidate, g.candidate).t > 0.0]
     if not rivals:
         return None
     best = min(rivals, key=lambda g: g.candidate.mse_validation)
-    return best if compare(best.candidate, f.candidate).t < MIN_T_SIGNIFICANT else None
+    t = compare(best.candidate, f.candidate).t
+    return (best, t) if t < MIN_T_SIGNIFICANT else None
 
 
 #: Two explanations of equal size (a top mount's lag, a late channel) are told apart only

@@ -141,21 +141,30 @@ def test_a_gain_on_top_of_a_delay_is_undone_in_order():
     assert residual_scale(both, 0, 2) == 1.0
 
 
+def _fake_fits(seed: int):
+    """A maker of fits (engine ``_Fit``) whose held-out residuals are one noise, scaled,
+    plus a little of their own: ``fit(effects, scale, data=None)``."""
+    from fielddiag.diagnose.engine import _Fit
+    from fielddiag.diagnose.selection import CandidateFit
+
+    rng = np.random.default_rng(seed)
+    noise = rng.normal(0.0, 1.0, 3000)
+
+    def fit(effects, scale, data=None):
+        own = rng.normal(0.0, 0.05, noise.size)
+        cand = CandidateFit(effects, {}, {}, 0.1, 0.1, scale * noise + own, len(effects) + 3)
+        return _Fit(effects + ((data.kind,) if data else ()), None, cand, [], (), data)
+
+    return fit
+
+
 def test_a_decisive_gain_is_carried_to_physics_chosen_after_it_was_tested():
     """The gain was tested on the physics first chosen (friction); the selection then took
     friction + a top mount, never fitted to the corrected drives: the gain is handed on,
     unless its correction made the first physics predict worse, or it is not decisive."""
-    from fielddiag.diagnose.engine import _decisive_gain_elsewhere, _Fit
-    from fielddiag.diagnose.selection import CandidateFit
+    from fielddiag.diagnose.engine import _decisive_gain_elsewhere
 
-    rng = np.random.default_rng(0)
-    noise = rng.normal(0.0, 1.0, 3000)
-
-    def fit(effects, scale, data=None):
-        # residuals: the same noise, scaled, and a little of their own
-        own = rng.normal(0.0, 0.05, noise.size)
-        cand = CandidateFit(effects, {}, {}, 0.1, 0.1, scale * noise + own, len(effects) + 3)
-        return _Fit(effects + ((data.kind,) if data else ()), None, cand, [], (), data)
+    fit = _fake_fits(seed=0)
 
     gain = DataHypothesis(GAIN_CHANGE, -0.037, 0.002)
     friction = fit(("coulomb_friction",), 1.0)
@@ -189,16 +198,9 @@ def test_a_late_channel_that_physics_predicts_as_well_is_not_decisive():
     (hysteresis, a top mount) moves alike: a decisive late channel is chosen over the
     linear model only where it also predicts better than the best physics added to it;
     else neither is reported and the user is told why. A gain change keeps its rule."""
-    from fielddiag.diagnose.engine import _decisive_data_problem, _Fit
-    from fielddiag.diagnose.selection import CandidateFit
+    from fielddiag.diagnose.engine import _decisive_data_problem
 
-    rng = np.random.default_rng(1)
-    noise = rng.normal(0.0, 1.0, 3000)
-
-    def fit(effects, scale, data=None):
-        own = rng.normal(0.0, 0.05, noise.size)
-        cand = CandidateFit(effects, {}, {}, 0.1, 0.1, scale * noise + own, len(effects) + 3)
-        return _Fit(effects + ((data.kind,) if data else ()), None, cand, [], (), data)
+    fit = _fake_fits(seed=1)
 
     late = DataHypothesis(TIME_OFFSET, 4.9e-4, 4e-5)
     linear = fit((), 1.0)
