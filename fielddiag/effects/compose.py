@@ -48,7 +48,7 @@ __all__ = ["compile_templates", "model_force", "model_force_z", "model_state_par
 _BOUND_CACHE: dict[tuple[Any, ...], Any] = {}
 _COMPILE_LOCK = threading.RLock()
 #: Bump when the generated source changes shape.
-_GENERATOR_VERSION = "3"
+_GENERATOR_VERSION = "4"
 _FORCE_NAMES = ("model_force", "model_force_z", "model_state_partials")
 
 
@@ -162,10 +162,17 @@ def _force_source(classes: tuple[type[Effect], ...]) -> tuple[list[str], list[st
     imports: list[str] = []
     calls: list[tuple[str, str]] = []  # (call without states, call with states)
     p0 = c0 = s0 = 0
+    # without internal states the kernels are inlined where they are called (numba's IR
+    # inlining): a call that is not inlined passes its array slices by reference count,
+    # which costs more than the force itself in the simulation's inner loop (with states,
+    # inlined into the larger loop body, they ran slower)
+    inline = not any(cls.n_states for cls in classes)
     for i, cls in enumerate(classes):
         p1, c1, s1 = p0 + len(cls.params), c0 + len(cls.constants), s0 + cls.n_states
         fn = cls.kernel.py_func
-        imports.append(f"from {fn.__module__} import {fn.__name__} as k{i}")
+        imports += [f"from {fn.__module__} import {fn.__name__} as _k{i}",
+                    f"k{i} = njit(nogil=True, inline='always')(_k{i}.py_func)" if inline
+                    else f"k{i} = _k{i}"]
         sl = f"th[{p0}:{p1}], cs[{c0}:{c1}], dth[{p0}:{p1}]"
         if cls.n_states:
             call = f"k{i}(r, rd, x2, z[{s0}:{s1}], {sl}, dz[{s0}:{s1}])"
@@ -178,7 +185,8 @@ def _force_source(classes: tuple[type[Effect], ...]) -> tuple[list[str], list[st
     imports += p_imports
     for name, args, pick in (("model_force", "r, rd, x2, th, cs, dth", 0),
                              ("model_force_z", "r, rd, x2, z, th, cs, dth, dz", 1)):
-        lines += ["@njit(cache=CACHE, nogil=True)", f"def {name}({args}):"]
+        how = ", inline='always'" if pick == 0 and inline else ""
+        lines += [f"@njit(cache=CACHE, nogil=True{how})", f"def {name}({args}):"]
         if pick == 0 and any(not c[0] for c in calls):
             lines += ["    raise NotImplementedError('this model has internal states')", ""]
             continue
@@ -211,9 +219,10 @@ def _module_text(module_name: str) -> str:
     return Path(path).read_text()
 
 
-def _template_source(text: str, names: Sequence[str], cache: bool, options: str = ""
-                     ) -> list[str]:
-    """The named top-level functions of a module's source, each under ``@njit``.
+def _template_source(text: str, names: Sequence[str], cache: bool, options: str = "",
+                     inline: Sequence[str] = ()) -> list[str]:
+    """The named top-level functions of a module's source, each under ``@njit`` (those in
+    ``inline`` inlined into their callers by numba).
 
     The functions are found by name in the same text that is hashed for the cache key, so
     the generated module always matches its name even if the file changed meanwhile.
@@ -225,7 +234,8 @@ def _template_source(text: str, names: Sequence[str], cache: bool, options: str 
         if name not in found:
             raise SyntaxError(f"template {name!r} not found")
         src = ast.get_source_segment(text, found[name])
-        out += [f"@njit(cache={cache}, nogil=True{options})", textwrap.dedent(src).rstrip(),
+        how = ", inline='always'" if name in inline else ""
+        out += [f"@njit(cache={cache}, nogil=True{options}{how})", textwrap.dedent(src).rstrip(),
                 "", ""]
     return out
 
@@ -266,6 +276,9 @@ def _compile(key: tuple[Any, ...], classes: tuple[type[Effect], ...], module_nam
              names: tuple[str, ...], error_model: str) -> Any:
     options = "" if error_model == "python" else f", error_model={error_model!r}"
     tmod_text = _module_text(module_name)
+    # stage functions called in a template's inner loop (the template module's
+    # INLINE_TEMPLATES): inlined, their array arguments are not reference-counted per call
+    inline = tuple(getattr(sys.modules[module_name], "INLINE_TEMPLATES", ()))
     imports, lines = _force_source(classes)
     kernel_mods = sorted({c.kernel.py_func.__module__ for c in classes})
     header = [
@@ -285,7 +298,7 @@ def _compile(key: tuple[Any, ...], classes: tuple[type[Effect], ...], module_nam
             f"({', '.join(names)}) for {' + '.join(c.name for c in classes)}. Do not edit."
             '"""',
             *header, *(ln.replace("CACHE", str(cache)) for ln in lines),
-            *_template_source(tmod_text, names, cache, options),
+            *_template_source(tmod_text, names, cache, options, inline),
         ])
 
     directory = _kernel_dir()

@@ -485,6 +485,10 @@ class GreyBoxProblem:
             # (the acceleration is the same either way, operation for operation)
             a, jz = self._simulate_session_zs(s, z) if exact else (
                 self._simulate_session_z(s, z), None)
+            if sens and jz is None and not np.all(np.isfinite(a)):
+                # the simulation diverged here: no step is taken from this point, so its
+                # forward differences (one more run per fitted value) would be wasted
+                jz = np.full((a.size, self.n_fit), np.nan)
             if sens and jz is None:
                 jz = np.zeros((a.size, self.n_fit))
                 for j in range(self.nuis_index):

@@ -38,6 +38,8 @@ from fielddiag.identify.greybox_data import GRAVITY_MPS2
 __all__ = ["simulate_body"]
 
 _EMPTY = np.zeros(1)
+#: Templates inlined into the templates that call them (:mod:`fielddiag.effects.compose`).
+INLINE_TEMPLATES = ("_stage",)
 
 
 @njit(cache=True, nogil=True)
@@ -60,21 +62,14 @@ def _hermite_basis(nsub):  # pragma: no cover - compiled
     return b
 
 
-def _stage(x, v, sx, sv, xin, vin, theta, consts, mass, load, dth, out_ksv,
-           n_par, sens):  # pragma: no cover - numba template
-    """Body acceleration at one stage and, if ``sens``, d/dt of the velocity sensitivities."""
+def _stage(x, v, xin, vin, theta, consts, mass, load, dth):  # pragma: no cover - template
+    """Body acceleration at one stage and its partial derivatives with respect to the
+    body's position and velocity; ``dth`` receives the force's derivatives with respect to
+    the parameters. Scalars in and out (beside the model's own arrays): arrays passed
+    through a call in the inner loop cost their reference counts, ten times the RK4
+    stage itself."""
     f, fr, fv, fx = model_force(x - xin, v - vin, x, theta, consts, dth)
-    a = (f - load) / mass
-    if sens:
-        ax = (fr + fx) / mass
-        av = fv / mass
-        q = sx.shape[0]
-        for j in range(q):
-            out_ksv[j] = ax * sx[j] + av * sv[j]
-        for j in range(n_par):
-            out_ksv[j] += dth[j] / mass
-        out_ksv[n_par] -= a / mass
-    return a
+    return (f - load) / mass, (fr + fx) / mass, fv / mass
 
 
 def _simulate(x1, v1, h, nsub, theta, consts, mass, load, dx0, dv0, sens,
@@ -125,11 +120,14 @@ def _simulate(x1, v1, h, nsub, theta, consts, mass, load, dx0, dv0, sens,
     v = dv0
     bas = _hermite_basis(nsub)
     hs = h / nsub
-    k = np.zeros((4, 2, q))  # stage derivatives of (sx, sv)
+    # stage derivatives of the sensitivities: kx[st] of sx (= the stage's sv), kv[st] of sv
+    kx = np.zeros((4, q))
+    kv = np.zeros((4, q))
     tx = np.zeros(q)
     tv = np.zeros(q)
     xin = np.empty(3)
     vin = np.empty(3)
+    ws = np.array([0.5, 0.5, 1.0])  # where stages 2-4 evaluate, in sub-steps
     for i in range(n):
         if reset_every > 0 and i > 0 and i % reset_every == 0:
             x = x2r[i] + (r_static if reset_static else 0.0)
@@ -138,62 +136,68 @@ def _simulate(x1, v1, h, nsub, theta, consts, mass, load, dx0, dv0, sens,
                 sx[j] = sx_static[j] if reset_static else 0.0
                 sv[j] = 0.0
         # output at the knot; it is also stage 1 of the first sub-step
-        a1 = _stage(x, v, sx, sv, x1[i], v1[i], theta, consts, mass, load, dth,
-                    k[0, 1], p, sens)
+        a1, ax, av = _stage(x, v, x1[i], v1[i], theta, consts, mass, load, dth)
         a_out[i] = a1
         if sens:
+            # d(sv)/dt at the knot equals d a2 / d params there
             for j in range(q):
-                jac[i, j] = k[0, 1, j]
-            # k[0,1] holds d(sv)/dt, which equals d a2 / d params at the knot
+                kv[0, j] = ax * sx[j] + av * sv[j]
+            for j in range(p):
+                kv[0, j] += dth[j] / mass
+            kv[0, p] -= a1 / mass
+            for j in range(q):
+                jac[i, j] = kv[0, j]
         if i == n - 1:
             break
         x0k, x1k = x1[i], x1[i + 1]
         hv0, hv1 = h * v1[i], h * v1[i + 1]
         for s in range(nsub):
             for m in range(3):
-                b = bas[2 * s + m]
-                xin[m] = b[0] * x0k + b[1] * hv0 + b[2] * x1k + b[3] * hv1
-                vin[m] = (b[4] * x0k + b[5] * hv0 + b[6] * x1k + b[7] * hv1) / h
+                r = 2 * s + m
+                xin[m] = bas[r, 0] * x0k + bas[r, 1] * hv0 + bas[r, 2] * x1k + bas[r, 3] * hv1
+                vin[m] = (bas[r, 4] * x0k + bas[r, 5] * hv0 + bas[r, 6] * x1k
+                          + bas[r, 7] * hv1) / h
             if s > 0:
-                a1 = _stage(x, v, sx, sv, xin[0], vin[0], theta, consts, mass, load,
-                            dth, k[0, 1], p, sens)
-            kx1, kv1 = v, a1
+                a1, ax, av = _stage(x, v, xin[0], vin[0], theta, consts, mass, load, dth)
+                if sens:
+                    for j in range(q):
+                        kv[0, j] = ax * sx[j] + av * sv[j]
+                    for j in range(p):
+                        kv[0, j] += dth[j] / mass
+                    kv[0, p] -= a1 / mass
             if sens:
                 for j in range(q):
-                    k[0, 0, j] = sv[j]
-                    tx[j] = sx[j] + 0.5 * hs * k[0, 0, j]
-                    tv[j] = sv[j] + 0.5 * hs * k[0, 1, j]
-            xs, vs = x + 0.5 * hs * kx1, v + 0.5 * hs * kv1
-            a2 = _stage(xs, vs, tx, tv, xin[1], vin[1], theta, consts, mass, load, dth,
-                        k[1, 1], p, sens)
-            kx2, kv2 = vs, a2
+                    kx[0, j] = sv[j]
+            # stages 2-4 from the one before: states (xs, vs), sensitivities (tx, tv)
+            kxs, kvs = v, a1
+            a_sum = a1
+            x_sum = v
+            for st in range(1, 4):
+                w = ws[st - 1] * hs
+                xs, vs = x + w * kxs, v + w * kvs
+                if sens:
+                    for j in range(q):
+                        tx[j] = sx[j] + w * kx[st - 1, j]
+                        tv[j] = sv[j] + w * kv[st - 1, j]
+                a_st, ax, av = _stage(xs, vs, xin[1 if st < 3 else 2], vin[1 if st < 3 else 2],
+                                      theta, consts, mass, load, dth)
+                if sens:
+                    for j in range(q):
+                        kx[st, j] = tv[j]
+                        kv[st, j] = ax * tx[j] + av * tv[j]
+                    for j in range(p):
+                        kv[st, j] += dth[j] / mass
+                    kv[st, p] -= a_st / mass
+                kxs, kvs = vs, a_st
+                c = 1.0 if st == 3 else 2.0
+                x_sum += c * vs
+                a_sum += c * a_st
+            x += hs / 6.0 * x_sum
+            v += hs / 6.0 * a_sum
             if sens:
                 for j in range(q):
-                    k[1, 0, j] = tv[j]
-                    tx[j] = sx[j] + 0.5 * hs * k[1, 0, j]
-                    tv[j] = sv[j] + 0.5 * hs * k[1, 1, j]
-            xs, vs = x + 0.5 * hs * kx2, v + 0.5 * hs * kv2
-            a3 = _stage(xs, vs, tx, tv, xin[1], vin[1], theta, consts, mass, load, dth,
-                        k[2, 1], p, sens)
-            kx3, kv3 = vs, a3
-            if sens:
-                for j in range(q):
-                    k[2, 0, j] = tv[j]
-                    tx[j] = sx[j] + hs * k[2, 0, j]
-                    tv[j] = sv[j] + hs * k[2, 1, j]
-            xs, vs = x + hs * kx3, v + hs * kv3
-            a4 = _stage(xs, vs, tx, tv, xin[2], vin[2], theta, consts, mass, load, dth,
-                        k[3, 1], p, sens)
-            kx4, kv4 = vs, a4
-            x += hs / 6.0 * (kx1 + 2.0 * kx2 + 2.0 * kx3 + kx4)
-            v += hs / 6.0 * (kv1 + 2.0 * kv2 + 2.0 * kv3 + kv4)
-            if sens:
-                for j in range(q):
-                    k[3, 0, j] = tv[j]
-                    sx[j] += hs / 6.0 * (k[0, 0, j] + 2.0 * k[1, 0, j] + 2.0 * k[2, 0, j]
-                                         + k[3, 0, j])
-                    sv[j] += hs / 6.0 * (k[0, 1, j] + 2.0 * k[1, 1, j] + 2.0 * k[2, 1, j]
-                                         + k[3, 1, j])
+                    sx[j] += hs / 6.0 * (kx[0, j] + 2.0 * kx[1, j] + 2.0 * kx[2, j] + kx[3, j])
+                    sv[j] += hs / 6.0 * (kv[0, j] + 2.0 * kv[1, j] + 2.0 * kv[2, j] + kv[3, j])
     return a_out, jac
 
 

@@ -18,6 +18,9 @@ from fielddiag.sim.effects import check_effects
 from fielddiag.sim.vehicle import DEFAULT_PARAMS, QuarterCarParams
 
 _P_M1, _P_K1, _P_C1, _P_M2T, _P_K3, _P_DMG, _P_LEV = range(7)
+#: Templates inlined into the templates that call them (:mod:`fielddiag.effects.compose`):
+#: the right-hand side, called at every RK4 stage with its arrays.
+INLINE_TEMPLATES = ("_rhs",)
 
 
 def levelling_force_n(
