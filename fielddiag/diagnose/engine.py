@@ -235,6 +235,16 @@ def _pinned(result, model: ForceModel, effects: Sequence[str]) -> tuple[str, ...
     return tuple(dict.fromkeys(out))
 
 
+#: A grey-box fit of the diagnosis ends when a step lowers the sum of squared residuals by
+#: less than this many times their variance (the chi-square in noise units): what is left
+#: moves the parameters by a small fraction of their standard deviation, and the held-out
+#: comparisons by a small fraction of what any decision needs, while the last iterations
+#: of a fit crawling along a flat valley are most of its time. As a relative tolerance of
+#: the cost: this divided by the number of residuals (about 2e-6 for a 2 x 300 s pair at
+#: the analysis rate, 1e-5 for 2 x 60 s). FIELDDIAG_FIT_CHI2_STEP overrides it, to measure.
+FIT_CHI2_STEP = float(os.environ.get("FIELDDIAG_FIT_CHI2_STEP", "0.1"))
+
+
 def _grey_fit(
     effects: Sequence[str],
     prepared: Sequence[_Prepared],
@@ -258,6 +268,7 @@ def _grey_fit(
     # trial steps of Levenberg-Marquardt may overflow before being rejected: not news
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
         result = fit_greybox(fits, model, initial=initial, substeps=substeps, max_iterations=40,
+                             ftol=FIT_CHI2_STEP / sum(f.n_samples for f in fits),
                              mass_bounds_kg=mass_bounds_kg if absolute else None)
         runs = validation_runs(result, [p.val for p in prepared], substeps=substeps)
     if data is not None:

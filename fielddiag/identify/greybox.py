@@ -135,6 +135,7 @@ def fit_greybox(
     validation: Sequence[GreyBoxData] = (),
     max_iterations: int = 50,
     xtol: float = 1e-8,
+    ftol: float = 1e-8,
     fit_initial_state: bool = True,
     substeps: int = 1,
     horizons_s: Sequence[float] | None = (0.0, 0.2, 2.0),
@@ -169,6 +170,9 @@ def fit_greybox(
         Levenberg-Marquardt iteration limit.
     xtol : float
         Relative step tolerance on the normalised parameters.
+    ftol : float
+        Relative cost-decrease tolerance of the final stage (an accepted step that lowers
+        the cost by less, or a Gauss-Newton step that could not, ends the fit).
     fit_initial_state : bool
         Fit each session's initial body offset and velocity.
     substeps : int
@@ -274,7 +278,7 @@ def fit_greybox(
             stages.append({"horizon_s": None, "iterations": 0, "cost": cost_start,
                            "restarted_from_start": True})
     out = solve(solver, fun, q, lo / scale, hi / scale,
-                max_iterations=max_iterations, xtol=xtol, callback=cb)
+                max_iterations=max_iterations, xtol=xtol, ftol=ftol, callback=cb)
     stages.append({"horizon_s": None, "iterations": out.iterations, "cost": float(out.cost)})
     out.iterations += total_it
     out.evaluations += total_ev

@@ -116,6 +116,25 @@ def test_diverging_model_stops_with_a_message():
     assert "diverged" in out.message
 
 
+def test_a_point_every_step_from_which_diverges_stops_within_a_few_evaluations():
+    """Finite at the start, non-finite at every other point (a model that blows up as soon
+    as it moves): each trial is rejected and the damping grows until the step vanishes;
+    the solver stops there, at the start, with no step tolerance, bounded or not, rather
+    than running to its iteration limit."""
+    x0 = np.array([1.0, 2.0])
+
+    def fun(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        r = np.array([1.0, -0.5]) if np.array_equal(x, x0) else np.array([np.inf, 0.0])
+        return r, np.array([[1.0, 0.2], [0.1, 1.0]])
+
+    for lower, upper in ((-INF, INF), (np.zeros(2), np.full(2, 10.0))):
+        out = levenberg_marquardt(fun, x0, lower, upper, max_iterations=200, xtol=0.0)
+        np.testing.assert_array_equal(out.x, x0)
+        assert out.cost == pytest.approx(0.625)
+        assert out.evaluations <= 14
+        assert out.message == "no further reduction possible"
+
+
 def test_hac_equals_the_ols_covariance_for_white_residuals():
     """Regressors [1, t, sin]; white residuals of sd 0.5: HAC and the white formula both
     estimate sigma^2 (X^T X)^-1. The white formula uses the sample variance exactly; HAC
