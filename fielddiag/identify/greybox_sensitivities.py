@@ -135,36 +135,31 @@ def _simulate(x1, v1, h, nsub, theta, consts, mass, load, dx0, dv0, sens,
             for j in range(q):
                 sx[j] = sx_static[j] if reset_static else 0.0
                 sv[j] = 0.0
-        # output at the knot; it is also stage 1 of the first sub-step
-        a1, ax, av = _stage(x, v, x1[i], v1[i], theta, consts, mass, load, dth)
-        a_out[i] = a1
-        if sens:
-            # d(sv)/dt at the knot equals d a2 / d params there
-            for j in range(q):
-                kv[0, j] = ax * sx[j] + av * sv[j]
-            for j in range(p):
-                kv[0, j] += dth[j] / mass
-            kv[0, p] -= a1 / mass
-            for j in range(q):
-                jac[i, j] = kv[0, j]
-        if i == n - 1:
-            break
-        x0k, x1k = x1[i], x1[i + 1]
-        hv0, hv1 = h * v1[i], h * v1[i + 1]
+        last = i == n - 1
+        x0k, x1k = x1[i], x1[i if last else i + 1]
+        hv0, hv1 = h * v1[i], h * v1[i if last else i + 1]
         for s in range(nsub):
             for m in range(3):
                 r = 2 * s + m
                 xin[m] = bas[r, 0] * x0k + bas[r, 1] * hv0 + bas[r, 2] * x1k + bas[r, 3] * hv1
                 vin[m] = (bas[r, 4] * x0k + bas[r, 5] * hv0 + bas[r, 6] * x1k
                           + bas[r, 7] * hv1) / h
-            if s > 0:
-                a1, ax, av = _stage(x, v, xin[0], vin[0], theta, consts, mass, load, dth)
-                if sens:
+            # stage 1; that of the first sub-step is at the knot, the output
+            xi, vi = (x1[i], v1[i]) if s == 0 else (xin[0], vin[0])
+            a1, ax, av = _stage(x, v, xi, vi, theta, consts, mass, load, dth)
+            if sens:
+                for j in range(q):
+                    kv[0, j] = ax * sx[j] + av * sv[j]
+                for j in range(p):
+                    kv[0, j] += dth[j] / mass
+                kv[0, p] -= a1 / mass
+            if s == 0:
+                a_out[i] = a1
+                if sens:  # d(sv)/dt at the knot equals d a2 / d params there
                     for j in range(q):
-                        kv[0, j] = ax * sx[j] + av * sv[j]
-                    for j in range(p):
-                        kv[0, j] += dth[j] / mass
-                    kv[0, p] -= a1 / mass
+                        jac[i, j] = kv[0, j]
+                if last:
+                    break
             if sens:
                 for j in range(q):
                     kx[0, j] = sv[j]
