@@ -94,23 +94,57 @@ def fmt_duration(seconds: float) -> str:
     return f"{h} h {m:02d} min" if h else f"{m} min {s:02d} s"
 
 
+# Draws the newest pushed option of a chart at the browser's next frame. An update that
+# arrives before that frame replaces the one waiting (a stale live frame is dropped, not
+# queued: a browser slower than the server's frame rate stays responsive). The chart
+# takes it once it shows ``n`` series (the layout goes first through the element's props).
+_PUSH_JS = """window.fdPushChart = window.fdPushChart || function (id, n, option) {
+    const pending = window.fdPendingCharts || (window.fdPendingCharts = new Map());
+    const scheduled = pending.has(id);
+    pending.set(id, [n, option]);
+    if (scheduled) return;
+    const draw = (tries) => {
+        const [want, opt] = pending.get(id);
+        const c = getElement(id);
+        const model = c && c.chart && !c.chart.isDisposed() && c.chart.getModel();
+        if (!model || model.getSeriesCount() !== want) {
+            if (tries < 1000) setTimeout(() => draw(tries + 1), 10); else pending.delete(id);
+            return;
+        }
+        pending.delete(id);
+        c.chart.setOption(opt);
+    };
+    requestAnimationFrame(() => draw(0));
+};"""
+
+
 def push_chart_update(chart, partial: dict, n_series: int) -> None:
     """Apply ``partial`` (a partial ECharts option, e.g. new series data) to ``chart``.
 
     Sent as a plain ``setOption`` call once the chart in the browser exists and shows
     ``n_series`` series, bypassing the element's reactive ``options`` prop: pushing a few
     hundred kB of points through Vue's deep reactivity costs the browser far more than
-    the drawing itself. The caller keeps ``chart.options`` current on the server.
+    the drawing itself. The caller keeps ``chart.options`` current on the server
+    (:func:`keep_chart_options`). Drawn at the browser's next animation frame; of the
+    updates that arrive before it, only the newest is drawn.
     """
     import orjson
 
     payload = orjson.dumps(partial, option=orjson.OPT_SERIALIZE_NUMPY).decode()
-    ui.run_javascript(
-        f"""(function push(n) {{
-            const c = getElement({chart.id});
-            const ready = c && c.chart && (c.chart.getOption()?.series?.length ?? -1)
-                          === {int(n_series)};
-            if (!ready) {{ if (n < 1000) setTimeout(() => push(n + 1), 10); return; }}
-            c.chart.setOption({payload});
-        }})(0);"""
-    )
+    ui.run_javascript(f"{_PUSH_JS}\nwindow.fdPushChart({chart.id}, {int(n_series)}, {payload});")
+
+
+def keep_chart_options(chart, options: dict) -> None:
+    """Make ``chart.options`` (the server's copy, sent again when a page reconnects) equal
+    to ``options`` without sending it to the browser now.
+
+    Since nicegui 3 the element's props are observable: changing them sends the whole
+    option, every point, through Vue on the next update. Use this beside
+    :func:`push_chart_update`, which sends the change itself.
+    """
+    suspend = getattr(chart.props, "suspend_updates", None)
+    if suspend is None:  # nicegui 2: plain props, nothing is sent until update()
+        chart.options.update(options)
+        return
+    with suspend():
+        chart.options.update(options)

@@ -19,6 +19,7 @@ from fielddiag.downsample import minmax_lttb_indices
 from fielddiag.errors import FieldDiagError
 from fielddiag.web.charts import PALETTE, nice_axis_labels, pairs_array
 from fielddiag.web.layout import (
+    keep_chart_options,
     not_available,
     notify_error,
     page_title,
@@ -276,7 +277,7 @@ def render(state) -> None:
         else:
             # same layout: send only the new data and time range (a small partial setOption
             # instead of the whole chart), and keep the server's copy of the options current
-            chart.options.update(opts)
+            keep_chart_options(chart, opts)
             push_chart_update(chart, {
                 "xAxis": [{"min": x["min"], "max": x["max"]} for x in opts["xAxis"]],
                 "series": [{"data": sr["data"], "markLine": {"data": sr["markLine"]["data"]}}
