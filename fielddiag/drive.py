@@ -289,8 +289,15 @@ def _time_base(
             f"{s.path.name} has irregular time stamps (jitter "
             f"{100 * np.std(inside) / med:.0f} % of the sample period); {purpose} "
             "needs a uniformly sampled DAQ recording")
-    fs = 1.0 / med
-    return t, fs, contiguous_pieces(t, n, fs, GAP_TOLERANCE)
+    pieces = contiguous_pieces(t, n, 1.0 / med, GAP_TOLERANCE)
+    # the rate: samples per second over the gap-free pieces. Not 1 / median step: a
+    # recorder's host clock mapping slews by up to a few 1e-3 while it steers towards its
+    # fit (drivers.clock_fit), and a busy host steers for long stretches, so the median
+    # step can be that far off; over a piece the steering averages out.
+    steps = sum(b - a - 1 for a, b in pieces)
+    span_s = sum(float(t[b - 1] - t[a]) for a, b in pieces)
+    fs = steps / span_s if steps > 0 and span_s > 0 else 1.0 / med
+    return t, fs, pieces
 
 
 # ---------------------------------------------------------------------------- readers

@@ -423,12 +423,17 @@ class VirtualDrive:
         progress: Callable[[dict[str, Any]], None] | None = None,
         progress_interval_s: float = 0.25,
     ) -> dict[str, Any]:
-        """Record until ``duration_s`` of session time (or the recording ends), then stop.
+        """Record ``duration_s`` of data (or until the recording ends), then stop.
+
+        With a DAQ, the length is that of the samples stored: a device that starts late
+        or falls behind real time on a busy host still gives the drive asked for (the
+        recording then takes longer, at most ``max(10 s, duration_s / 2)`` more). Without
+        one, it is the session time.
 
         Parameters
         ----------
         duration_s : float
-            Session time to record [s].
+            Data to record [s].
         progress : callable or None
             Called with :meth:`status` every ``progress_interval_s`` [s] while recording,
             and with the final status once stopped (unless the recording failed).
@@ -449,8 +454,17 @@ class VirtualDrive:
         if rec is None:
             raise DeviceError("not recording: start() the virtual drive first")
         next_progress = 0.0
+        late_s = max(10.0, 0.5 * duration_s)
+        rate_hz = rec.daq.sample_rate_hz if rec.daq is not None else None
+
+        def recorded_s() -> float:
+            if rate_hz is None:
+                return rec.clock.now()
+            return rec.status().get("samples", 0) / rate_hz
+
         try:
-            while rec.running and rec.clock.now() < duration_s:
+            while (rec.running and recorded_s() < duration_s
+                   and rec.clock.now() < duration_s + late_s):
                 time.sleep(0.05)
                 if progress is not None and time.monotonic() >= next_progress:
                     progress(self.status())

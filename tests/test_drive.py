@@ -86,6 +86,19 @@ def test_gaps_in_time_stamps_give_pieces_and_the_real_times(tmp_path):
     assert c.pieces is None and c.piece_list() == [(0, N)]
 
 
+def test_the_rate_of_steered_time_stamps_is_the_devices(tmp_path):
+    """A recorder's host-clock mapping slews (here +1.5e-3 for 70 % of the time, then
+    back) while it steers towards its clock fit: the median step is 0.15 % short, the
+    rate over the drive is the device's."""
+    wheel, body = _signals()
+    slope = np.where(np.arange(N) < 0.7 * N, 1.5e-3, -3.5e-3)  # net offset change 0
+    t = 5.0 + np.cumsum(np.r_[0.0, (1.0 + slope[1:]) / FS])
+    assert 1.0 / np.median(np.diff(t)) == pytest.approx(FS / 1.0015, rel=1e-6)
+    d = read_corner_drive(_write(tmp_path / "steered.h5", wheel, body, time_s=t))
+    assert d.pieces is None
+    assert d.sample_rate_hz == pytest.approx(FS, rel=1e-5)
+
+
 def test_a_gap_recorded_on_a_uniform_time_base_cuts_the_pieces(tmp_path):
     wheel, body = _signals()
     p = _write(tmp_path / "u.h5", wheel, body, gaps=[Gap(4.0, 4.5, 100, "usb")])

@@ -142,6 +142,8 @@ def test_a_pulled_cable_and_a_corrupting_link_lose_nothing_received(tmp_path):
     assert "DAQ disconnected" in labels and any("reconnected" in x for x in labels)
     # the recording went on after the outage (1 s to 2 s): frames up to the end
     assert (seqs[-1] - seqs[0] + 1) * n / 500.0 > 4.0
+    # 4.5 s of data were asked for: the outage made the recording longer, not shorter
+    assert raw.shape[0] >= 4.5 * 500.0 and final["elapsed_s"] > 5.0
 
 
 def test_a_looped_drive_repeats_on_the_daq_and_the_ecu(tmp_path):
