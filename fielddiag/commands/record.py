@@ -47,8 +47,27 @@ from fielddiag.errors import FieldDiagError
 from fielddiag.validate import arg_int, arg_number
 
 
-def _interrupt(signum: int, frame: object) -> None:
-    raise KeyboardInterrupt
+class _StopRequests:
+    """Ctrl-C and SIGTERM while recording: requests to stop, answered by the recording
+    loop, which then closes the session. The handler raises nothing: an exception raised
+    wherever the main thread happens to be (starting a thread, writing the status line)
+    is not a clean stop, and a later Ctrl-C while the session closes is only counted."""
+
+    def __init__(self) -> None:
+        self.count = 0
+        self._saved: dict[int, object] = {}
+
+    def __call__(self, signum: int, frame: object) -> None:
+        self.count += 1
+
+    def install(self) -> None:
+        for sig in (signal.SIGINT, signal.SIGTERM):  # SIGINT also when in the background
+            self._saved[sig] = signal.signal(sig, self)
+
+    def restore(self) -> None:
+        for sig, handler in self._saved.items():
+            signal.signal(sig, handler)
+        self._saved.clear()
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -267,7 +286,6 @@ def build_sources(args: argparse.Namespace, channel_map: dict[int, str] | None =
 
 def run(args: argparse.Namespace) -> int:
     from fielddiag.channels import SessionMetadata
-    from fielddiag.console import StatusPrinter, status_lines
     from fielddiag.outputs import check_target
     from fielddiag.recorder import Recorder
 
@@ -284,15 +302,26 @@ def run(args: argparse.Namespace) -> int:
         notes=args.notes,
         extra=extra,
     )
+    rec, run_ = None, None
     if args.virtual:
         run_ = virtual_drive(args, meta)
     else:
         rec = Recorder(args.output, build_sources(args, channel_map), metadata=meta,
                        overwrite=args.overwrite)
+    requests = _StopRequests()
     if threading_main():
-        signal.signal(signal.SIGTERM, _interrupt)
-        signal.signal(signal.SIGINT, _interrupt)  # also when started in the background
-    if args.virtual:
+        requests.install()
+    try:
+        return _record(args, rec, run_, requests)
+    finally:
+        requests.restore()
+
+
+def _record(args: argparse.Namespace, rec, run_, requests: _StopRequests) -> int:
+    """Start, record until the end or a stop request, close; print the summary."""
+    from fielddiag.console import StatusPrinter, status_lines
+
+    if run_ is not None:
         rec = run_.start().recorder  # the on-line estimator is attached already
         stop = run_.stop_or_raise
     else:
@@ -314,21 +343,19 @@ def run(args: argparse.Namespace) -> int:
             flush=True,
         )
         next_status = time.monotonic() + interval
-        while rec.running:
+        while rec.running and not requests.count:
             if args.duration is not None and rec.clock.now() >= args.duration:
                 break
             time.sleep(0.1)
             if not args.quiet and time.monotonic() >= next_status:
                 printer.show(rec.status())
                 next_status += interval
-    except KeyboardInterrupt:
+    except KeyboardInterrupt:  # Ctrl-C where no handler could be installed
         pass
     finally:
-        signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C must not cut the close
         try:
             final = stop()
         finally:
-            signal.signal(signal.SIGINT, signal.default_int_handler)
             printer.finish()
     if "online" in final:
         print("\n".join(status_lines(final)[1:]), file=sys.stderr)

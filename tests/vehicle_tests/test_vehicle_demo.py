@@ -122,7 +122,7 @@ def test_demo_sessions_hold_the_simulated_drives(recorded):
                           (rec.body_accel_mps2, drive.body_accel_mps2)):
             assert np.abs(got - want[:, :n]).max() <= 0.5 * lsb * (1 + 1e-9)
     # the same drives with the recorded CAN signals and sample rate (the session's, from
-    # its time stamps over the drive: within a few ppm of 500 Hz, also on a busy machine),
+    # its time stamps over the drive: within 1e-5 of 500 Hz, 5e-5 on a busy machine),
     # identified from arrays: the recording path (pty, frames, clock fit, HDF5) changes
     # the readings by < 0.5 LSB (4e-8 m/s^2), which must not move the mass by 5 % of its
     # std
@@ -133,7 +133,7 @@ def test_demo_sessions_hold_the_simulated_drives(recorded):
                        sample_rate_hz=recs[k].sample_rate_hz)
             for k, d in drives.items()}
     rates = {k: r.sample_rate_hz for k, r in recs.items()}
-    assert all(fs == pytest.approx(500.0, rel=1e-5) for fs in rates.values()), rates
+    assert all(fs == pytest.approx(500.0, rel=5e-5) for fs in rates.values()), rates
     ident = json.loads((recorded.run / "before.identify.json").read_text())["sprung_mass_kg"]
     ref = identify_vehicle(same["before"], same["after"], DEMO_ADDED_KG, at).to_dict()[
         "sprung_mass_kg"]
