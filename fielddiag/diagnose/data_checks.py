@@ -505,7 +505,8 @@ def check_time_offset(
     return time_offset_warning(tau, tau_std)
 
 
-def time_offset_warning(tau_s: float, std_s: float, moved: str = "") -> DataWarning:
+def time_offset_warning(tau_s: float, std_s: float, moved: str = "",
+                        physics: str = "") -> DataWarning:
     """The plain-language warning for a body channel delayed by ``tau_s`` (+- ``std_s``).
 
     Parameters
@@ -515,6 +516,8 @@ def time_offset_warning(tau_s: float, std_s: float, moved: str = "") -> DataWarn
         deviation [s].
     moved : str
         Text appended to the advice, or "".
+    physics : str
+        How the suspension's own lag (a stiff top mount) fared against it, or "".
 
     Returns
     -------
@@ -525,9 +528,10 @@ def time_offset_warning(tau_s: float, std_s: float, moved: str = "") -> DataWarn
     return DataWarning(
         "channel_time_offset",
         f"the {which} the other by {1000 * abs(tau_s):.2f} +- {1000 * std_s:.2f} ms (a phase "
-        "error growing with frequency that no suspension produces). Check that both "
-        "channels are sampled together (same DAQ clock, same filter settings)"
-        f"{moved}",
+        "error growing with frequency; of the suspension, only a stiff top mount in series "
+        "with the damper delays like this, and only the damper's force). "
+        f"{physics}Check that both channels are sampled together (same DAQ clock, same "
+        f"filter settings){moved}",
         "",
         "",
         tau_s,

@@ -524,8 +524,33 @@ class Diagnosis:
                 out.append(data_checks.gain_warning(self.drives[0].label, self.drives[-1].label,
                                                     hyp.value, hyp.std, moved, hyp.evidence))
             else:
-                out.append(data_checks.time_offset_warning(hyp.value, hyp.std, moved))
+                out.append(data_checks.time_offset_warning(hyp.value, hyp.std, moved,
+                                                           self._lag_physics(hyp)))
         return out
+
+    def _lag_physics(self, hyp: DataHypothesis) -> str:
+        """How the suspension's own lag (an effect whose
+        :attr:`~fielddiag.effects.base.Effect.data_twins` hold a time offset: a stiff top
+        mount) fared against the late channel ``hyp``, in words; "" where none was fitted.
+        """
+        chosen = self.chosen
+        twins = [f for f in self.fits if f.data is None and f.candidate.physical
+                 and set(f.physics) > set(chosen.physics)
+                 and any(hyp.kind in EFFECTS[e].data_twins
+                         for e in set(f.physics) - set(chosen.physics))]
+        if not twins or hyp.value <= 0:
+            return ""
+        twin = min(twins, key=lambda f: f.candidate.mse_validation)
+        t = compare(twin.candidate, chosen.candidate).t  # > 0: the late channel is better
+        names = " + ".join(e.replace("_", " ") for e in set(twin.physics) - set(chosen.physics))
+        key = "linear_damper.suspension_damping_ns_per_m"
+        c = chosen.candidate.values.get(key, self.baseline.candidate.values.get(key))
+        size = ""
+        if c and self.mode == "pair":
+            size = (f" (this lag would be a mount of about {c / hyp.value:.3g} N/m: the "
+                    "damping over the delay)")
+        return (f"A {names}{size} was fitted instead and predicted the held-out data "
+                f"{'worse' if t > 0 else 'as well'} (t = {t:.1f} for the late channel). ")
 
     def _finding(self, effect: str) -> dict:
         c = self.chosen.candidate

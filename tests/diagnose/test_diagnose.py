@@ -42,7 +42,7 @@ EFFECT_CASES = {
 #: benchmark draws every family at every strength).
 NEW_FAMILIES = ["quadratic_damping"]
 #: The sample diagnosed here (cubic_3: a spring strong enough to leave the linear model
-#: without one sprung mass; asymmetric_2 is diagnosed through the CLI by
+#: without one sprung mass; asymmetric_3 is diagnosed through the CLI too, by
 #: test_cli_pair_with_plots).
 SINGLE = ["friction_2", "cubic_3", "bump_stop_2", "asymmetric_3", "small_friction"] + NEW_FAMILIES
 PAIRS = ["friction_and_asymmetric"]
@@ -100,7 +100,7 @@ def results(pending) -> dict[str, dict]:
 def test_cli_pair_with_plots(pending, tmp_path, capsys):
     # runs in this process while the workers diagnose the catalogue
     assert pending
-    before, after, _ = write_scenario(SCENARIOS["asymmetric_2"], tmp_path)
+    before, after, _ = write_scenario(SCENARIOS["asymmetric_3"], tmp_path)
     out_json = tmp_path / "d.json"
     args = ["diagnose", str(before), str(after), "--added-mass", "60", "--json",
             str(out_json), "--plots", str(tmp_path / "plots")]

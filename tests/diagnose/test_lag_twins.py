@@ -10,6 +10,7 @@ linear car (seed 100 of benchmarks/random_cases.py, 244 Hz), 60 s drives.
 
 from __future__ import annotations
 
+import re
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -77,6 +78,14 @@ def test_a_late_channel_beats_the_top_mount_that_looks_like_it():
     assert not out["findings"]
     offset = [w for w in diag.data_problems() if w.kind == "channel_time_offset"]
     assert offset and offset[0].value == pytest.approx(1.5e-3, abs=3e-4)
+    # the warning says how the suspension's own lag fared, with the mount it would need
+    c = out["augmented_model"]["suspension_damping_ns_per_m"]
+    m = re.search(r"A series top mount \(this lag would be a mount of about ([\d.e+]+) N/m: "
+                  r"the damping over the delay\) was fitted instead and predicted the "
+                  r"held-out data worse \(t = ([\d.]+) for the late channel\)",
+                  offset[0].message)
+    assert m, offset[0].message
+    assert float(m[1]) == pytest.approx(c / offset[0].value, rel=0.01) and float(m[2]) > 0
 
 
 
