@@ -66,6 +66,10 @@ class DataHypothesis:
     std: float
     prior: DataHypothesis | None = None  # a problem corrected before this one
     evidence: str = ""  # what besides the transmissibility says so (the gravity levels)
+    #: a gain change measured twice, independently, with the same result: the gravity
+    #: levels and the transmissibility's level each at least MIN_Z std from zero, same
+    #: sign, within 3 std of each other
+    confirmed: bool = False
 
     @property
     def chain(self) -> list[DataHypothesis]:
@@ -115,9 +119,11 @@ def combine_gain(dynamic: tuple[float, float] | None, gravity: GravityGain | Non
             "sensor)"))
     w_d, w_g = 1.0 / ds**2, 1.0 / gs**2
     value = (w_d * d + w_g * g) / (w_d + w_g)
+    confirmed = bool(abs(d) >= MIN_Z * ds and abs(g) >= MIN_Z * gs and d * g > 0)
     return DataHypothesis(GAIN_CHANGE, float(value), float(1.0 / np.sqrt(w_d + w_g)),
                           evidence=f"{evidence}; the transmissibility's level agrees "
-                                   f"({100 * d:+.1f} +- {100 * ds:.1f} %)")
+                                   f"({100 * d:+.1f} +- {100 * ds:.1f} %)",
+                          confirmed=confirmed)
 
 
 def from_transmissibility(trs: list[dict], band_hz: tuple[float, float],

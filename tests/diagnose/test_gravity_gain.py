@@ -123,13 +123,18 @@ def test_combining_agreeing_and_disagreeing_estimates():
     assert both.std < min(0.004, grav.ratio_std)
     assert both.value == pytest.approx(0.02, abs=3 * both.std)
     assert "agrees" in both.evidence
+    assert both.confirmed  # two independent measurements, each significant, one result
+    # the gravity levels moved (a bias drift could do that) but the transmissibility's
+    # level did not, significantly: agreeing, not confirmed
+    flat = combine_gain((0.010, 0.006), grav)
+    assert "agrees" in flat.evidence and not flat.confirmed
     # the transmissibility's level moved 8 % but gravity says 2 %: physics moved the level
     odd = combine_gain((0.08, 0.004), grav)
     assert odd.value == pytest.approx(grav.ratio_change) and odd.std == grav.ratio_std
-    assert "do not confirm" in odd.evidence
+    assert "do not confirm" in odd.evidence and not odd.confirmed
     # no gravity: the dynamic estimate alone; neither: nothing
     alone = combine_gain((0.03, 0.005), None)
-    assert (alone.value, alone.std, alone.evidence) == (0.03, 0.005, "")
+    assert (alone.value, alone.std, alone.evidence, alone.confirmed) == (0.03, 0.005, "", False)
     assert combine_gain(None, None) is None
 
 
