@@ -1777,8 +1777,14 @@ def _diagnose(
         share = float(near.mean()) if near is not None else 0.0
         away = unexplained
         if share <= CLIP_DOMINATES:
-            say("  again, away from the clipped readings")
-            away, _ = _unexplained(chosen, chosen.prepared, coupling, base, say, known=tried,
+            # the chosen model fitted away from the clipped readings too: fitted to them,
+            # its values are biased by what the clipping took, a misfit that follows
+            # travel and speed everywhere, not only near the clipped readings
+            say("  again, away from the clipped readings, with the model fitted there")
+            clean = _fit_away_from_clipping(chosen.physics, chosen, coupling, clipped,
+                                            mass_bounds)
+            away, _ = _unexplained(clean or chosen, chosen.prepared, coupling, base, say,
+                                   known=tried,
                                    exclude=lambda d, t: _near(clipped[d.label], t))
         if away is None or share > CLIP_DOMINATES:
             unexplained = surface_reported = None
