@@ -71,7 +71,8 @@ class CornerDrive:
         Vertical acceleration of the wheel (unsprung) and of the body (sprung) side, up
         positive, gravity included [m/s^2].
     sample_rate_hz : float
-        Sample rate [Hz] (from the median time step when the session has time stamps).
+        Sample rate [Hz] (with time stamps: samples per second over the gap-free
+        pieces).
     added_mass_kg : float
         Mass added on the body for this drive [kg].
     label : str
