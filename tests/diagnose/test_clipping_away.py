@@ -49,13 +49,9 @@ def test_without_clipping_the_whole_part_is_one_stretch():
     assert share == pytest.approx(56.0 / 60.0, abs=1e-3)
 
 
-@pytest.mark.timeout(900)
-def test_a_late_channel_beside_clipping_is_measured_away_from_it():
-    # the randomized generator's seed 1795764045 (60 s drives, 280 Hz): a linear car whose
-    # wheel channel is 2.71 ms late, with 0.4 % of the wheel readings clipped. The clipped
-    # peaks hold 81 % of the linear model's held-out misfit: measured on the whole drives
-    # the delay refined to -0.48 ms, and asymmetric damping absorbed the peaks, then fell
-    # to the clipping and took the delay with it ("adequate", nothing reported)
+def _linear_case_diagnosed(seed: int):
+    """The randomized generator's case ``seed`` (60 s drives, a linear car) and its
+    diagnosis."""
     import sys
     from pathlib import Path
 
@@ -64,11 +60,21 @@ def test_a_late_channel_beside_clipping_is_measured_away_from_it():
 
     from fielddiag.diagnose.engine import diagnose_drives
 
-    case = rc.draw_case(1795764045, duration_s=60.0)
+    case = rc.draw_case(seed, duration_s=60.0)
     assert case.family == "linear"
+    return case, diagnose_drives(rc.case_drives(case))
+
+
+@pytest.mark.timeout(900)
+def test_a_late_channel_beside_clipping_is_measured_away_from_it():
+    # the randomized generator's seed 1795764045 (60 s drives, 280 Hz): a linear car whose
+    # wheel channel is 2.71 ms late, with 0.4 % of the wheel readings clipped. The clipped
+    # peaks hold 81 % of the linear model's held-out misfit: measured on the whole drives
+    # the delay refined to -0.48 ms, and asymmetric damping absorbed the peaks, then fell
+    # to the clipping and took the delay with it ("adequate", nothing reported)
+    case, diag = _linear_case_diagnosed(1795764045)
     truth = {n["kind"]: n for n in case.nuisances}
     assert truth["time_offset"]["channel"] == "wheel" and "clipping" in truth
-    diag = diagnose_drives(rc.case_drives(case))
     out = diag.to_dict()
     assert not out["findings"]
     kinds = [w["kind"] for w in out["warnings"]]
@@ -87,19 +93,9 @@ def test_structure_beside_clipping_is_judged_with_the_model_fitted_away_from_it(
     # to the clipped readings too, the linear model's values carry what the clipping took,
     # a misfit that follows travel and speed away from the clipped readings as well: it was
     # told as `unexplained` (10-14 % of the residual, t = 4.2-4.8), a false alarm
-    import sys
-    from pathlib import Path
-
-    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
-    import random_cases as rc
-
-    from fielddiag.diagnose.engine import diagnose_drives
-
-    case = rc.draw_case(1795802919, duration_s=60.0)
-    assert case.family == "linear"
+    case, diag = _linear_case_diagnosed(1795802919)
     truth = {n["kind"]: n for n in case.nuisances}
     assert truth["time_offset"]["channel"] == "body" and "clipping" in truth
-    diag = diagnose_drives(rc.case_drives(case))
     out = diag.to_dict()
     assert out["verdict"] == "adequate" and not out["findings"], out["findings"]
     offset = [w for w in diag.data_problems() if w.kind == "channel_time_offset"]
