@@ -617,7 +617,10 @@ class Recorder:
         """Estimate suspension parameters on-line from the wheel and body channels.
 
         Call after :meth:`start`. The estimator is compiled in a thread of its own before
-        it is attached, so the source thread never waits for numba. Its status
+        it is attached, so the source thread never waits for numba; but loading it beside
+        running sources competes with their threads (a block read 0.2 s late), so a
+        caller that can should compile first (``OnlineEstimator(rate).warm_up()`` before
+        :meth:`start`, as ``fielddiag record`` does): then it is attached at once. Its status
         (estimates, information per parameter, advice for the technician) appears under
         ``"online"`` in :meth:`status`; :attr:`online_ready` is set once it is attached
         (or has failed, ``status()["online_error"]`` then says why).
