@@ -317,6 +317,14 @@ def run(args: argparse.Namespace) -> int:
         requests.restore()
 
 
+def _full_vehicle_map(args: argparse.Namespace) -> bool:
+    """True when the channel map or the vehicle file makes this a full-vehicle recording."""
+    from fielddiag.vehicle.recording import FULL_VEHICLE_ROLES
+
+    return bool(args.vehicle_file) or any(r.split("=")[0].strip() in FULL_VEHICLE_ROLES
+                                          for r in args.role)
+
+
 def _load_online_estimator() -> None:
     """Import and compile the on-line estimator (about 3 s the first time in a process).
 
@@ -333,7 +341,8 @@ def _record(args: argparse.Namespace, rec, run_, requests: _StopRequests) -> int
     """Start, record until the end or a stop request, close; print the summary."""
     from fielddiag.console import StatusPrinter, status_lines
 
-    online = run_ is None and not args.no_online  # the virtual drive attaches its own
+    # the virtual drive attaches its own; a full vehicle has no single corner to estimate
+    online = run_ is None and not args.no_online and not _full_vehicle_map(args)
     if run_ is not None:
         rec = run_.start().recorder  # the on-line estimator is attached already
         stop = run_.stop_or_raise
@@ -341,7 +350,8 @@ def _record(args: argparse.Namespace, rec, run_, requests: _StopRequests) -> int
         if online and not requests.count:
             # compiled before the sources start: loading it (imports, numba) beside a
             # running source thread held the reader up by up to 0.2 s a block
-            print("loading the on-line estimator...", file=sys.stderr, flush=True)
+            if sys.stderr.isatty():
+                print("loading the on-line estimator...", file=sys.stderr, flush=True)
             _load_online_estimator()
         rec.start()
         stop = rec.stop
