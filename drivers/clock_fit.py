@@ -90,8 +90,12 @@ class DeviceClockFit:
     While the points span less than ``young_span_s`` (30 s) the slope is still uncertain,
     so the line is put under the points of the last ``recent_s`` (2 s) instead of under
     the whole history: a slope error then costs its product with 2 s, not with half the
-    history. A fitted slope beyond ``max_drift_ppm`` means the offset stepped; only the
-    points of the last ``step_memory_s`` (2 s) are kept.
+    history (and the line rises above the one under all points by no more than
+    ``max_drift_ppm`` over the span: a host busy for the last 2 s does not lift it). A
+    fitted slope beyond ``max_drift_ppm`` with arrivals ever later is a backlog growing on
+    a busy host: the last slope is kept and the line stays under the timely arrivals. With
+    arrivals ever earlier (they cannot precede the acquisition) the offset stepped; only
+    the points of the last ``step_memory_s`` (2 s) are kept.
     """
 
     def __init__(
@@ -207,10 +211,16 @@ class DeviceClockFit:
             a, b_fit = lower_envelope_line(x, y)
             if abs(b_fit) <= self.max_drift:
                 b = b_fit
+            elif b_fit > 0:
+                # arrivals later and later, faster than any clock drifts: a backlog
+                # growing on a busy host (a device clock set back is a restart the caller
+                # resets for). The line stays under the timely arrivals, with the last slope
+                a = None
             else:
                 a = None
-                # no clock drifts that much: the offset stepped (a device clock that was
-                # set, a streamer that skipped). Keep only the points after the step.
+                # arrivals earlier than any drift explains (they cannot precede the
+                # acquisition): the offset stepped (a device clock that was set forward,
+                # a streamer that skipped). Keep only the points after the step.
                 recent = x >= -self.step_memory_s
                 x, y = x[recent], y[recent]
                 self._points = deque(
@@ -218,14 +228,16 @@ class DeviceClockFit:
                     maxlen=self._points.maxlen,
                 )
         span = float(x[-1] - x[0])
-        if a is None:  # too short a span for a slope: keep the last one
+        if a is None:  # too short a span for a slope, or no slope believed: keep the last
             a = float(np.min(y - b * x))
         elif span < self.young_span_s:
             # a young fit's slope is uncertain: put the line under the recent points
             # rather than under the middle of the history, so a slope error is
-            # extrapolated over seconds, not over half the history
+            # extrapolated over seconds, not over half the history. But no higher than
+            # a believable slope error allows: recent arrivals all late (a host busy for
+            # seconds) must not lift the line by the backlog
             recent = x >= -self.recent_s
-            a = float(np.min(y[recent] - b * x[recent]))
+            a = min(float(np.min(y[recent] - b * x[recent])), a + self.max_drift * span)
         self._a, self._b, self._ref = float(a), float(b), ref
         self.fit_offset_s = self._a
         self._dirty = False
