@@ -81,8 +81,29 @@ def _probe(folder: Path, shown: str | os.PathLike) -> None:
     probe.unlink(missing_ok=True)
 
 
+#: Least free space to start work whose result goes to a file / a folder of plots (a
+#: diagnosis' JSON is about 0.4 MB, its plots about 1.3 MB): below it the work would only
+#: end in "No space left on device", seconds or minutes later.
+MIN_FREE_FILE_BYTES = 1 << 20
+MIN_FREE_FOLDER_BYTES = 4 << 20
+
+
+def _check_free(folder: Path, shown: str | os.PathLike, need_bytes: int) -> None:
+    """Refuse a folder whose file system has less than ``need_bytes`` free."""
+    try:
+        free = shutil.disk_usage(folder).free
+    except OSError:
+        return  # no answer (an exotic file system): the write itself will tell
+    if free < need_bytes:
+        raise OutputError(
+            f"cannot write {shown}: No space left on device ({free / 1024:.0f} kB free, "
+            f"at least {need_bytes / 2**20:.0f} MB needed); free some space or write "
+            "elsewhere")
+
+
 def check_target(
-    path: str | os.PathLike, *, overwrite: bool, flag: str = "-o"
+    path: str | os.PathLike, *, overwrite: bool, flag: str = "-o",
+    need_bytes: int = MIN_FREE_FILE_BYTES,
 ) -> Path:
     """Check that ``path`` can be written, before any work is done.
 
@@ -96,6 +117,8 @@ def check_target(
         even then.
     flag : str
         The option that named it, for the message.
+    need_bytes : int
+        Least free space on its file system (default 1 MiB).
 
     Returns
     -------
@@ -128,6 +151,7 @@ def check_target(
     if not parent.is_dir():
         raise OutputError(f"folder {parent} of {p.name} does not exist; create it first")
     _probe(parent, p)
+    _check_free(parent, p, need_bytes)
     return p
 
 
@@ -149,8 +173,10 @@ def check_folder(path: str | os.PathLike, flag: str = "--plots") -> Path:
             raise OutputError(f"folder {parent} does not exist; create it first, or give "
                               f"{flag} a folder inside an existing one")
         _probe(parent, p)
+        _check_free(parent, p, MIN_FREE_FOLDER_BYTES)
     else:
         _probe(p, p)
+        _check_free(p, p, MIN_FREE_FOLDER_BYTES)
     return p
 
 

@@ -297,6 +297,31 @@ def check_pair_files(
                       added_mass_kg)
 
 
+def check_pair_before_work(
+    before_path: str | os.PathLike,
+    after_path: str | os.PathLike,
+    added_mass_kg: float | None = None,
+) -> None:
+    """:func:`check_pair_files` as a command's first step, before it loads the numerics.
+
+    Two drives that are no pair are refused in a fraction of a second instead of after
+    seconds of imports. Sessions without a wheel and a body channel are left alone: the
+    analysis says the missing channel first, as it always has.
+
+    Raises
+    ------
+    PairError
+        As :func:`check_pair_files`.
+    """
+    from fielddiag.session import SessionReader
+
+    for path in (before_path, after_path):
+        with SessionReader(path) as s:
+            if not (s.channels_for_role("wheel") and s.channels_for_role("body")):
+                return
+    check_pair_files(before_path, after_path, added_mass_kg)
+
+
 def header_of(summary: object) -> DriveHeader:
     """A :class:`DriveHeader` from anything listing a session (``path``, ``vehicle``,
     ``corner``, ``added_mass_kg``, ``created``; e.g. the dashboard's catalog entries)."""

@@ -94,6 +94,10 @@ def run(args: argparse.Namespace) -> int:
     if not is_rig:
         for p in paths:
             finite_session(p)
+        if len(paths) == 2:
+            from fielddiag.pairs import check_pair_before_work
+
+            check_pair_before_work(paths[0], paths[1], args.added_mass)
     if is_rig:
         from fielddiag.diagnose.rig import diagnose_rig, rig_data_from_session
         from fielddiag.plots.diagnose import write_rig_plots as write_plots_into

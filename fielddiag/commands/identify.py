@@ -104,6 +104,9 @@ def run(args: argparse.Namespace) -> int:
                              "drives")
     for path in (args.before, args.after):
         finite_session(path)
+    from fielddiag.pairs import check_pair_before_work
+
+    check_pair_before_work(args.before, args.after, args.added_mass)
     from fielddiag.identify import IdentifyConfig, identify_sessions
 
     result = identify_sessions(

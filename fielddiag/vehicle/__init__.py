@@ -18,21 +18,47 @@ Modules (one concern each):
   and damping, anti-roll bars, with standard deviations).
 """
 
-from fielddiag.vehicle.geometry import VehicleFileError, VehicleGeometry, load_vehicle
-from fielddiag.vehicle.identify import (
-    VehicleIdentification,
-    VehicleIdentifyConfig,
-    identify_vehicle,
-)
-from fielddiag.vehicle.manoeuvres import Manoeuvre, braking, make_manoeuvre, ramp_steer, rough_road
-from fielddiag.vehicle.params import CornerParams, VehicleParams, random_vehicle
-from fielddiag.vehicle.recording import (
-    FULL_VEHICLE_ROLES,
-    VehicleRecording,
-    is_full_vehicle_session,
-    read_vehicle_recording,
-)
-from fielddiag.vehicle.sim import VehicleDrive, body_mass_matrix, simulate_vehicle
+import importlib
+
+#: Where each public name lives. Loaded on first use (PEP 562): importing one light module
+#: of the package (the session reader's role check, the geometry) must not load the
+#: identification with scipy and numba, 3 s before a command can even refuse bad input.
+_WHERE = {
+    "FULL_VEHICLE_ROLES": "recording",
+    "CornerParams": "params",
+    "Manoeuvre": "manoeuvres",
+    "VehicleDrive": "sim",
+    "VehicleFileError": "geometry",
+    "VehicleGeometry": "geometry",
+    "VehicleIdentification": "identify",
+    "VehicleIdentifyConfig": "identify",
+    "VehicleParams": "params",
+    "VehicleRecording": "recording",
+    "body_mass_matrix": "sim",
+    "braking": "manoeuvres",
+    "identify_vehicle": "identify",
+    "is_full_vehicle_session": "recording",
+    "load_vehicle": "geometry",
+    "make_manoeuvre": "manoeuvres",
+    "ramp_steer": "manoeuvres",
+    "random_vehicle": "params",
+    "read_vehicle_recording": "recording",
+    "rough_road": "manoeuvres",
+    "simulate_vehicle": "sim",
+}
+
+
+def __getattr__(name: str):
+    if name in _WHERE:
+        value = getattr(importlib.import_module(f"{__name__}.{_WHERE[name]}"), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted([*globals(), *_WHERE])
+
 
 __all__ = [
     "FULL_VEHICLE_ROLES",
