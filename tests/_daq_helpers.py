@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import threading
 import time
 from dataclasses import dataclass, field
 
@@ -64,3 +65,28 @@ def missing_seqs(seqs: list[int]) -> list[int]:
     """Sequence numbers between the first and last received that never arrived."""
     got = set(seqs)
     return [s for s in range(seqs[0], seqs[-1] + 1) if s not in got]
+
+
+class SchedulingDelay:
+    """The longest a thread of this process waited past a 10 ms sleep while running: how
+    late the machine wakes a sleeping thread just now (a recorder's flusher, a device's
+    sender, a CAN reader are such threads). Use as a context manager."""
+
+    def __init__(self) -> None:
+        self.max_s = 0.0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            t = time.perf_counter()
+            time.sleep(0.01)
+            self.max_s = max(self.max_s, time.perf_counter() - t - 0.01)
+
+    def __enter__(self) -> SchedulingDelay:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._stop.set()
+        self._thread.join()

@@ -13,7 +13,6 @@ import os
 import signal
 import subprocess
 import sys
-import threading
 import time
 import uuid
 from pathlib import Path
@@ -21,7 +20,7 @@ from pathlib import Path
 import can
 import numpy as np
 import pytest
-from _daq_helpers import missing_seqs, noise_signals
+from _daq_helpers import SchedulingDelay, missing_seqs, noise_signals
 
 from drivers import open_source
 from drivers.virtual import VirtualDAQ, VirtualECU
@@ -189,30 +188,6 @@ def _start_record_cli(daq: VirtualDAQ, path: Path) -> subprocess.Popen:
     raise AssertionError("recorder did not start")
 
 
-class _SchedulingDelay:
-    """The longest a thread of this process waited past a 10 ms sleep while running: how
-    late the machine wakes a sleeping thread just now (the recorder's flusher is one)."""
-
-    def __init__(self) -> None:
-        self.max_s = 0.0
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            t = time.perf_counter()
-            time.sleep(0.01)
-            self.max_s = max(self.max_s, time.perf_counter() - t - 0.01)
-
-    def __enter__(self) -> _SchedulingDelay:
-        self._thread.start()
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self._stop.set()
-        self._thread.join()
-
-
 def _fsync_s(folder: Path, n_bytes: int) -> float:
     """Time to write ``n_bytes`` and fsync them in ``folder`` (a flush's disk part)."""
     path = folder / "fsync-probe.bin"
@@ -243,7 +218,7 @@ def test_sigkill_keeps_counters_consistent_and_loses_what_was_not_flushed_only(t
         path = tmp_path / f"killed{k}.h5"
         with VirtualDAQ(
             noise_signals(40000, 3), sample_rate_hz=1000.0, corrupt_rate=2e-4, seed=k
-        ) as daq, _SchedulingDelay() as delay:
+        ) as daq, SchedulingDelay() as delay:
             proc = _start_record_cli(daq, path)
             time.sleep(1.0 + rng.uniform(0.0, 1.0))
             with SessionReader(path) as s:  # what the recorder had flushed so far

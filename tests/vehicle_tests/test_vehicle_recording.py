@@ -14,6 +14,7 @@ import uuid
 import can
 import numpy as np
 import pytest
+from _daq_helpers import SchedulingDelay
 
 from drivers.virtual import (
     FULL_SCALE_RANGES_G,
@@ -65,10 +66,11 @@ def _braking_drive(seconds: float, seed: int, **kw):
 def test_a_full_vehicle_virtual_drive_is_the_simulated_drive(tmp_path):
     drive = _braking_drive(8.0, 4, added_mass_kg=120.0, added_mass_at_m=(1.6, -0.2))
     path = tmp_path / "fv.h5"
-    run = VirtualDrive(path, drive_s=8.0, drive=drive,
-                       metadata=SessionMetadata(vehicle="virtual car")).start()
-    run.record_for(6.0)
-    run.stop_or_raise()
+    with SchedulingDelay() as delay:
+        run = VirtualDrive(path, drive_s=8.0, drive=drive,
+                           metadata=SessionMetadata(vehicle="virtual car")).start()
+        run.record_for(6.0)
+        run.stop_or_raise()
     assert is_full_vehicle_session(path)
     rec = read_vehicle_recording(path)
     with SessionReader(path) as s:
@@ -98,8 +100,11 @@ def test_a_full_vehicle_virtual_drive_is_the_simulated_drive(tmp_path):
     # CAN, played in step with the DAQ: speed sampled at 41 Hz and interpolated onto the DAQ
     # samples; piecewise linear, so off only near a change of acceleration da, by at most
     # da T / 4 (da <= 6 m/s^2, T = 1/41 s: 0.037 m/s), plus half an LSB and 2 ms of timing
+    # and how late this machine woke a sending or reading thread meanwhile (a frame is
+    # stamped when it arrives: 3 ms late once under four busy processes)
     dv = np.abs(rec.speed_mps - drive.speed_mps[:n])
-    assert dv.max() <= 6.0 * SPEED_PERIOD_S / 4 + SPEED_LSB_MPS / 2 + 6.0 * 0.002
+    timing_s = 0.002 + delay.max_s
+    assert dv.max() <= 6.0 * SPEED_PERIOD_S / 4 + SPEED_LSB_MPS / 2 + 6.0 * timing_s
     # accelerations: 100 Hz means over 10 ms, interpolated; over 0.5 s blocks they carry the
     # drive's (noise included) but for a step da moved across a block edge by at most half
     # a period plus the timing (5 + 5 ms): da * 10 ms / 0.5 s = 0.12 m/s^2
