@@ -248,6 +248,21 @@ def test_timestamps_follow_the_device_clock_under_skew_and_jitter():
     assert np.all(np.abs(np.diff(got.time_s) * host_rate - 1.0) < 2.5e-3)
 
 
+def _mapped_as_a_driver_does(fit: DeviceClockFit, t_dev: np.ndarray,
+                             arrival: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Feed each frame's device time and arrival to ``fit`` and map it as the serial driver
+    does (steer, map, steer); returns the device and mapped times once it has settled."""
+    rows = []
+    for d, h in zip(t_dev, arrival, strict=True):
+        fit.observe(d, h)
+        if fit.settled:
+            if not fit.locked:
+                fit.steer(d)
+            rows.append((d, float(fit.map(d))))
+            fit.steer(d)
+    return tuple(np.array(rows).T)
+
+
 def test_clock_fit_on_synthetic_latencies():
     rng = np.random.default_rng(3)
     drift_ppm, offset = -250.0, 123.456
@@ -255,15 +270,7 @@ def test_clock_fit_on_synthetic_latencies():
     t_dev = np.arange(0.0, 120.0, 0.02)
     t_true = offset + t_dev / (1 + drift_ppm * 1e-6)  # host time when each instant happened
     arrival = t_true + 0.0003 + rng.exponential(0.004, t_dev.size)  # latency, heavy tail
-    mapped = []
-    for d, h in zip(t_dev, arrival, strict=True):
-        fit.observe(d, h)
-        if fit.settled:
-            if not fit.locked:
-                fit.steer(d)
-            mapped.append(float(fit.map(d)))
-            fit.steer(d)
-    mapped = np.array(mapped)
+    _, mapped = _mapped_as_a_driver_does(fit, t_dev, arrival)
     assert fit.drift_ppm == pytest.approx(drift_ppm, abs=5.0)
     assert np.all(np.diff(mapped) > 0)
     err = mapped - t_true[-len(mapped):]
@@ -302,15 +309,7 @@ def test_clock_fit_keeps_a_continuous_time_base_through_a_growing_backlog(load_f
     busy = (t_dev >= load_from_s) & (t_dev < load_from_s + load_s)
     delay[busy] += 0.8 * (t_dev[busy] - load_from_s) / load_s
     arrival = np.maximum.accumulate(true + delay)  # the backlog arrives in a burst after
-    mapped = []
-    for d, h in zip(t_dev, arrival, strict=True):
-        fit.observe(d, h)
-        if fit.settled:
-            if not fit.locked:
-                fit.steer(d)
-            mapped.append((d, float(fit.map(d))))
-            fit.steer(d)
-    d, m = np.array(mapped).T
+    d, m = _mapped_as_a_driver_does(fit, t_dev, arrival)
     spacing = np.diff(m) / np.diff(d)
     assert 0.997 < spacing.min() and spacing.max() < 1.003  # slewed (<= 2e-3), never stepped
     assert np.abs(m - (100.0 + d)).max() < 0.02  # the backlog lifted the mapping < 20 ms
