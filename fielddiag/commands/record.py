@@ -312,17 +312,9 @@ def run(args: argparse.Namespace) -> int:
     if threading_main():
         requests.install()
     try:
-        return _record(args, rec, run_, requests)
+        return _record(args, rec, run_, requests, full_vehicle=bool(extra))
     finally:
         requests.restore()
-
-
-def _full_vehicle_map(args: argparse.Namespace) -> bool:
-    """True when the channel map or the vehicle file makes this a full-vehicle recording."""
-    from fielddiag.vehicle.recording import FULL_VEHICLE_ROLES
-
-    return bool(args.vehicle_file) or any(r.split("=")[0].strip() in FULL_VEHICLE_ROLES
-                                          for r in args.role)
 
 
 def _load_online_estimator() -> None:
@@ -337,12 +329,13 @@ def _load_online_estimator() -> None:
         pass
 
 
-def _record(args: argparse.Namespace, rec, run_, requests: _StopRequests) -> int:
+def _record(args: argparse.Namespace, rec, run_, requests: _StopRequests, *,
+            full_vehicle: bool = False) -> int:
     """Start, record until the end or a stop request, close; print the summary."""
     from fielddiag.console import StatusPrinter, status_lines
 
     # the virtual drive attaches its own; a full vehicle has no single corner to estimate
-    online = run_ is None and not args.no_online and not _full_vehicle_map(args)
+    online = run_ is None and not args.no_online and not full_vehicle
     if run_ is not None:
         rec = run_.start().recorder  # the on-line estimator is attached already
         stop = run_.stop_or_raise

@@ -60,26 +60,4 @@ def __dir__() -> list[str]:
     return sorted([*globals(), *_WHERE])
 
 
-__all__ = [
-    "FULL_VEHICLE_ROLES",
-    "CornerParams",
-    "Manoeuvre",
-    "VehicleDrive",
-    "VehicleFileError",
-    "VehicleGeometry",
-    "VehicleIdentification",
-    "VehicleIdentifyConfig",
-    "VehicleParams",
-    "VehicleRecording",
-    "body_mass_matrix",
-    "braking",
-    "identify_vehicle",
-    "is_full_vehicle_session",
-    "load_vehicle",
-    "make_manoeuvre",
-    "ramp_steer",
-    "random_vehicle",
-    "read_vehicle_recording",
-    "rough_road",
-    "simulate_vehicle",
-]
+__all__ = sorted(_WHERE)
