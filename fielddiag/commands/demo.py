@@ -76,6 +76,13 @@ def _new_run_dir(root: Path) -> Path:
     return run
 
 
+#: Transmit buffer of the demo's virtual DAQs [bytes]: about a minute of an 8-channel
+#: drive. The virtual devices run in the recording process, so when a busy machine starves
+#: that process for seconds, a device catches up in one burst that a 64 kB buffer (the
+#: fault-injection default) would drop; a demo shows the analysis, not that overload.
+DEMO_TX_BUFFER_BYTES = 1 << 20
+
+
 def record_drives(run_dir: Path, drives: dict[str, dict], duration_s: float) -> list[Path]:
     """Record drives at once through the virtual devices, showing their progress.
 
@@ -85,7 +92,8 @@ def record_drives(run_dir: Path, drives: dict[str, dict], duration_s: float) -> 
         Folder of the sessions (``<label>.h5``).
     drives : dict
         Label -> keyword arguments of :func:`fielddiag.virtual_drive.record_virtual_drive`
-        (each drive on its own pseudo-terminal and CAN bus).
+        (each drive on its own pseudo-terminal and CAN bus); the DAQs buffer
+        :data:`DEMO_TX_BUFFER_BYTES` unless the drive's ``faults`` say otherwise.
     duration_s : float
         Length of each recording [s] (real time).
 
@@ -106,10 +114,12 @@ def record_drives(run_dir: Path, drives: dict[str, dict], duration_s: float) -> 
     errors: list[BaseException] = []
 
     def worker(label: str) -> None:
+        kwargs = dict(drives[label])
+        kwargs["faults"] = {"tx_buffer_bytes": DEMO_TX_BUFFER_BYTES, **(kwargs.get("faults") or {})}
         try:
             results[label] = record_virtual_drive(
                 run_dir / f"{label}.h5", duration_s=duration_s,
-                progress=lambda st: status.__setitem__(label, st), **drives[label])
+                progress=lambda st: status.__setitem__(label, st), **kwargs)
         except BaseException as exc:  # reported by the main thread
             errors.append(exc)
 
