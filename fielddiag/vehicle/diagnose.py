@@ -91,7 +91,7 @@ from fielddiag.vehicle.identify import (
     prepare_drive,
     weighted_drives,
 )
-from fielddiag.vehicle.recording import VehicleRecording
+from fielddiag.vehicle.recording import VehicleRecording, reading_notes
 from fielddiag.vehicle.regression import (
     N_PARAMS,
     PARAM_NAMES,
@@ -1159,6 +1159,8 @@ def _diagnose(before: VehicleRecording, after: VehicleRecording, added_mass_kg: 
                  "duration_s": rec.duration_s} for k, rec in enumerate((before, after))]
     return VehicleDiagnosis(
         findings=findings, baseline=base, chosen=chosen, candidates=cands_json[:40],
+        warnings=[{"kind": "gaps", "message": n}
+                  for n in reading_notes(before, after, *validate)],
         linear_model=_model_dict(base_all), augmented_model=_model_dict(chosen_all),
         sessions=sessions, band_hz=(lo, hi), method=method, cross_validation=cv,
         fit=_fit_traces(base_all, chosen_all, drives, names, hold_parts),
@@ -1188,10 +1190,11 @@ def _noise_dict(body_sigma: Sequence[float] | None, edges: np.ndarray | None,
 
 def _start_s(rec: VehicleRecording, cfg: VehicleIdentifyConfig) -> float:
     """Time of the first prepared sample in the recording [s] (the trimmed filter ends of
-    :func:`~fielddiag.vehicle.identify.prepare_drive`)."""
+    :func:`~fielddiag.vehicle.identify.prepare_drive`; a stretch read from later in the
+    session counts from the session's first sample)."""
     fs = float(rec.sample_rate_hz)
     trim = int(round((4.5 / cfg.band_hz[0] if cfg.trim_s is None else cfg.trim_s) * fs))
-    return trim / fs
+    return float(getattr(rec, "start_s", 0.0)) + trim / fs
 
 
 def _fit_traces(base: _Fitted, chosen: _Fitted, drives: Sequence[DriveRegressors],
@@ -1231,6 +1234,8 @@ def format_vehicle_summary(out: dict[str, Any]) -> str:
     str
     """
     lines = [f"full-vehicle diagnosis: {out['verdict']}"]
+    lines.extend(f"  warning: {w.get('message', w) if isinstance(w, dict) else w}"
+                 for w in out.get("warnings", []))
     b, a = out["baseline"], out["augmented"]
     lines.append(f"  held-out NRMSE of the body accelerations: linear "
                  f"{b['nrmse_validation']:.4f}, chosen model {a['nrmse_validation']:.4f}")

@@ -58,7 +58,7 @@ from scipy import signal
 from fielddiag.channels import CORNERS
 from fielddiag.errors import FieldDiagError, InsufficientDataError, InvalidValueError
 from fielddiag.vehicle.output_error import SETTLE_S, refine_output_error, simulate_body_accel
-from fielddiag.vehicle.recording import VehicleRecording
+from fielddiag.vehicle.recording import VehicleRecording, reading_notes
 from fielddiag.vehicle.regression import (
     N_PARAMS,
     PARAM_NAMES,
@@ -247,10 +247,11 @@ def prepare_drive(rec: VehicleRecording, cfg: VehicleIdentifyConfig = VehicleIde
         raise InvalidValueError(f"band {lo:g}-{hi:g} Hz does not fit a {fs:g} Hz recording; "
                                 f"give 0 < low < high < {0.45 * fs:g} Hz")
     if rec.duration_s < cfg.min_duration_s:
+        kept = "".join(f" ({n})" for n in reading_notes(rec))
         raise InsufficientDataError(
-            f"{rec.name or rec.label or 'a drive'} lasts {rec.duration_s:.1f} s; the full "
-            f"vehicle needs at least {cfg.min_duration_s:g} s of driving on a rough road "
-            "(record longer)")
+            f"{rec.name or rec.label or 'a drive'} lasts {rec.duration_s:.1f} s{kept}; the "
+            f"full vehicle needs at least {cfg.min_duration_s:g} s of driving on a rough road "
+            "without a gap (record longer)")
     sos = signal.butter(cfg.filter_order, [lo, hi], "bandpass", fs=fs, output="sos")
     acc = np.vstack([rec.wheel_accel_mps2, rec.body_accel_mps2]).astype(float)
     car = np.vstack([rec.signal_or_zero("accel_long"), rec.signal_or_zero("accel_lat")])
@@ -973,4 +974,4 @@ def identify_vehicle(
         anti_roll_stiffness_rear_n_per_m=est["arb_r"],
         wls=w, cross_validation=cv, fit_nrmse=fit, method=method, refinement=refinement,
         noise={k: v for k, v in noise_info.items() if k != "weights"},
-        warnings=noise_warnings(noise_info, w))
+        warnings=[*reading_notes(before, after, *validate), *noise_warnings(noise_info, w)])

@@ -22,7 +22,8 @@ from fielddiag.errors import ChannelNotFoundError, SessionError
 from fielddiag.vehicle.geometry import VehicleFileError, VehicleGeometry
 
 __all__ = ["FULL_VEHICLE_ROLES", "VEHICLE_SIGNAL_ROLES", "VehicleRecording",
-           "full_vehicle_extra", "is_full_vehicle_session", "read_vehicle_recording"]
+           "full_vehicle_extra", "is_full_vehicle_session", "read_vehicle_recording",
+           "reading_notes"]
 
 #: The eight accelerometer roles of a full-vehicle session.
 FULL_VEHICLE_ROLES = tuple(f"{k}_{c}" for k in ("wheel", "body") for c in CORNERS)
@@ -51,6 +52,12 @@ class VehicleRecording:
         Where it sits (x, y) [m], None when not recorded.
     label, name, path : str
         The drive's part in an analysis, its file name and path ("" for arrays).
+    start_s : float
+        Time of the first sample from the start of the recording [s] (0 but where the
+        reader kept a later stretch).
+    notes : tuple of str
+        What the reader did that the analysis's user should know (the stretch of a drive
+        with gaps it kept).
     """
 
     wheel_accel_mps2: np.ndarray
@@ -65,6 +72,8 @@ class VehicleRecording:
     label: str = ""
     name: str = ""
     path: str = ""
+    start_s: float = 0.0
+    notes: tuple[str, ...] = ()
 
     @property
     def n(self) -> int:
@@ -167,16 +176,16 @@ def read_vehicle_recording(path: str | os.PathLike, *, label: str = "",
                 f"{name} lacks the full-vehicle role(s) {', '.join(missing)}; {purpose} of the "
                 "whole car needs all eight (import with --role wheel_fl=COL ... --role "
                 "body_rr=COL)")
+        _, fs, pieces = _time_base(s, 0, s.n_samples, purpose)
+        i0, i1 = max(pieces, key=lambda p: p[1] - p[0])
+        start_s = float(s.time_at(i0, i0 + 1)[0] - s.time_at(0, 1)[0])
+        notes = () if len(pieces) == 1 else (
+            _stretch_note(name, pieces, (i0, i1), start_s, fs, int(s.counters["samples_lost"])),)
         wheel, body = [], []
         for kind, dest in (("wheel", wheel), ("body", body)):
             for c in CORNERS:
                 ch = find_channel(s.channels, kind, corner=c, source=name, purpose=purpose)
-                dest.append(s.read(ch.name) * accel_unit_factor(ch.unit, ch.name))
-        _, fs, pieces = _time_base(s, 0, s.n_samples, purpose)
-        if len(pieces) > 1:
-            raise SessionError(f"{name} has gaps in its time base; {purpose} of the whole car "
-                               "needs a continuous recording (export the longest gap-free "
-                               "stretch)")
+                dest.append(s.read(ch.name)[i0:i1] * accel_unit_factor(ch.unit, ch.name))
         sig: dict[str, np.ndarray | None] = {}
         for role in VEHICLE_SIGNAL_ROLES:
             try:
@@ -184,7 +193,7 @@ def read_vehicle_recording(path: str | os.PathLike, *, label: str = "",
             except ChannelNotFoundError:
                 sig[role] = None
                 continue
-            v = s.signal_on_daq_time(spec.name)
+            v = s.signal_on_daq_time(spec.name)[i0:i1]
             if role == "speed" and spec.unit.strip().lower() in ("km/h", "kmh", "kph"):
                 v = v / 3.6
             sig[role] = None if np.all(np.isnan(v)) else np.nan_to_num(v)
@@ -207,4 +216,24 @@ def read_vehicle_recording(path: str | os.PathLike, *, label: str = "",
         speed_mps=None if sig["speed"] is None else sig["speed"][:n],
         accel_long_mps2=None if sig["accel_long"] is None else sig["accel_long"][:n],
         accel_lat_mps2=None if sig["accel_lat"] is None else sig["accel_lat"][:n],
-        added_mass_kg=dm, added_mass_at_m=at, label=label, name=name, path=str(p))
+        added_mass_kg=dm, added_mass_at_m=at, label=label, name=name, path=str(p),
+        start_s=start_s, notes=notes)
+
+
+def reading_notes(*recordings) -> list[str]:
+    """The notes of the drives an analysis read (:attr:`VehicleRecording.notes`; none for a
+    simulated drive), in order."""
+    return [n for rec in recordings for n in getattr(rec, "notes", ())]
+
+
+def _stretch_note(name: str, pieces: list[tuple[int, int]], kept: tuple[int, int],
+                  start_s: float, fs: float, samples_lost: int) -> str:
+    """Words for the longest gap-free stretch of a drive with gaps, which the whole-car
+    analysis keeps (its equations need every corner at once, without a jump in time)."""
+    n = sum(b - a for a, b in pieces)
+    gaps = len(pieces) - 1
+    return (f"{name} has {gaps} gap{'s' if gaps > 1 else ''} in its time base"
+            + (f" ({samples_lost} samples lost while recording)" if samples_lost else "")
+            + "; the whole-car analysis uses its longest gap-free stretch, "
+            f"{start_s:.1f}-{start_s + (kept[1] - kept[0]) / fs:.1f} s "
+            f"({100 * (kept[1] - kept[0]) / n:.0f} % of the samples)")

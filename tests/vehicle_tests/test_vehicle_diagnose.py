@@ -8,6 +8,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from _vehicle_helpers import write_with_a_gap
+
 from fielddiag.cli import main
 from fielddiag.effects import CoulombFriction
 from fielddiag.errors import InvalidValueError
@@ -37,11 +39,12 @@ def _kinds(out):
 def test_worn_rear_left_damper_and_front_strut_friction_through_the_cli(tmp_path, capsys):
     """The demo's car: rear-left damper 30 % weaker than rear-right, 80 N of dry friction
     in the front-left strut; sessions on disk, ``fielddiag diagnose`` with the contract's
-    arguments."""
+    arguments. The 'before' drive lost half a second at 1 s while recording: the analysis
+    keeps its longest gap-free stretch and says so."""
     car = random_vehicle(21)
     car = car.with_corner("rl", damping_ns_per_m=0.7 * car.corner("rr").damping_ns_per_m)
     before, after, at = _pair(car, {"fl": [CoulombFriction(friction_force_n=80.0)]})
-    b = write_vehicle_session(before, tmp_path / "before.h5")
+    b = write_with_a_gap(before, tmp_path / "before.h5", (1.0, 1.5))
     a = write_vehicle_session(after, tmp_path / "after.h5")
     out_json = tmp_path / "diag.json"
     rc = main(["diagnose", str(b), str(a), "--added-mass", str(ADDED_KG), "--added-mass-at",
@@ -49,7 +52,14 @@ def test_worn_rear_left_damper_and_front_strut_friction_through_the_cli(tmp_path
     assert rc == 0
     text = capsys.readouterr().out
     assert "[fl] coulomb_friction" in text and "[rl] left_right_mismatch" in text
+    note = ("before.h5 has 1 gap in its time base; the whole-car analysis uses its longest "
+            "gap-free stretch, 1.5-60.0 s (98 % of the samples)")
+    lines = text.splitlines()
+    head = next(i for i, line in enumerate(lines) if line.startswith("full-vehicle diagnosis:"))
+    assert lines[head + 1] == f"  warning: {note}"  # under the verdict
     out = json.loads(out_json.read_text())
+    assert out["warnings"] == [{"kind": "gaps", "message": note}]
+    assert out["sessions"][0]["duration_s"] == pytest.approx(58.5, abs=0.01)
     assert out["mode"] == "full_vehicle" and out["verdict"] == "missing_physics"
     assert sorted(_kinds(out)) == [("coulomb_friction", "fl"), ("left_right_mismatch", "rl")]
     fric = next(f for f in out["findings"] if f["effect"] == "coulomb_friction")

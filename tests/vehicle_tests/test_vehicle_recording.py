@@ -279,3 +279,48 @@ def test_full_scale_and_channel_map_helpers():
     assert parse_channel_map(["wheel=ch3", "body=CH0"]) == {0: "body", 3: "wheel"}
     wheel, body = np.arange(8.0).reshape(2, 4, 1)
     assert daq_columns(wheel, body)[0].tolist() == [0, 4, 1, 5, 2, 6, 3, 7]
+
+
+def test_a_drive_with_gaps_is_read_as_its_longest_gap_free_stretch_and_says_so(tmp_path):
+    """Frames lost while recording (a starved host, a cable pulled for a moment) leave gaps
+    in the time base; the whole-car analysis needs every corner without a jump in time, so
+    it keeps the longest gap-free stretch and tells the user which, rather than refusing the
+    drive."""
+    from fielddiag.channels import ChannelSpec, Gap, SessionMetadata, SignalSpec
+    from fielddiag.session import write_session
+    from fielddiag.vehicle.identify import VehicleIdentifyConfig, prepare_drive
+    from fielddiag.vehicle.recording import SIGNAL_NAMES, full_vehicle_extra
+
+    drive = simulate_vehicle(VehicleParams(), duration_s=12.0, seed=8)
+    n, fs = drive.n, drive.sample_rate_hz
+    # two gaps: 0.2 s lost at 3 s, 0.1 s at 4 s; the longest stretch is from 4.1 s on
+    keep = np.ones(n, bool)
+    keep[int(3.0 * fs):int(3.2 * fs)] = False
+    keep[int(4.0 * fs):int(4.1 * fs)] = False
+    t = drive.time_s[keep]
+    samples = np.vstack([drive.wheel_accel_mps2, drive.body_accel_mps2]).T[keep]
+    channels = [ChannelSpec(f"{k}_{c}", unit="m/s2", role=f"{k}_{c}")
+                for k in ("wheel", "body") for c in ("fl", "fr", "rl", "rr")]
+    signals = {SignalSpec(SIGNAL_NAMES["speed"], unit="m/s", role="speed"):
+               (drive.time_s, drive.speed_mps)}
+    path = write_session(
+        tmp_path / "gappy.h5", SessionMetadata(extra=full_vehicle_extra(drive.geometry)),
+        channels, samples, sample_rate_hz=fs, time_s=t,
+        signals=signals, gaps=[Gap(3.0, 3.2, int(0.2 * fs), "frames lost"),
+                               Gap(4.0, 4.1, int(0.1 * fs), "frames lost")])
+    rec = read_vehicle_recording(path)
+    start = int(4.1 * fs)
+    assert rec.n == n - start
+    np.testing.assert_allclose(rec.wheel_accel_mps2, drive.wheel_accel_mps2[:, start:],
+                               rtol=0, atol=1e-9)
+    np.testing.assert_allclose(rec.body_accel_mps2, drive.body_accel_mps2[:, start:],
+                               rtol=0, atol=1e-9)
+    np.testing.assert_allclose(rec.speed_mps, drive.speed_mps[start:], rtol=0, atol=1e-6)
+    assert rec.sample_rate_hz == pytest.approx(fs, rel=1e-9)
+    assert rec.start_s == pytest.approx(4.1, abs=1e-9)  # times told count from the session start
+    (note,) = rec.notes
+    assert note == ("gappy.h5 has 2 gaps in its time base; the whole-car analysis uses its "
+                    "longest gap-free stretch, 4.1-12.0 s (68 % of the samples)")
+    # too short once cut: the refusal says why the drive is shorter than recorded
+    with pytest.raises(Exception, match=r"gappy.h5 lasts 7.9 s \(gappy.h5 has 2 gap"):
+        prepare_drive(rec, VehicleIdentifyConfig())

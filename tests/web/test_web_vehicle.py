@@ -8,12 +8,13 @@ import json
 from pathlib import Path
 
 import pytest
+from _vehicle_helpers import write_with_a_gap
 from test_web_browser import chart_series, clean_page, js_errors, shot, text_of, wait_until
 from web_helpers import LiveServer
 
 from fielddiag.catalog import result_path
 from fielddiag.effects import CoulombFriction
-from fielddiag.vehicle import random_vehicle, simulate_vehicle
+from fielddiag.vehicle import random_vehicle, read_vehicle_recording, simulate_vehicle
 from fielddiag.vehicle.diagnose import diagnose_vehicle
 from fielddiag.vehicle.writer import write_vehicle_session
 
@@ -45,9 +46,12 @@ def vehicle_root(tmp_path: Path) -> Path:
     b = simulate_vehicle(car, duration_s=45.0, seed=1, effects=eff)
     a = simulate_vehicle(car, duration_s=45.0, seed=2, effects=eff, added_mass_kg=150.0,
                          added_mass_at_m=at)
-    pb = write_vehicle_session(b, folder / "before.h5", vehicle_name="test car")
+    # the 'before' drive lost a second while recording: read back, the longest stretch
+    pb = write_with_a_gap(b, folder / "before.h5", (2.0, 3.0), vehicle_name="test car")
     pa = write_vehicle_session(a, folder / "after.h5", vehicle_name="test car")
-    out = {"session_paths": [pb.name, pa.name], **diagnose_vehicle(b, a, 150.0, at).to_dict()}
+    rb = read_vehicle_recording(pb)
+    out = {"session_paths": [pb.name, pa.name],
+           **diagnose_vehicle(rb, read_vehicle_recording(pa), 150.0, at).to_dict()}
     for p in (pb, pa):
         result_path(p, "diagnose").write_text(json.dumps(out), encoding="utf-8")
     return tmp_path / "root"
@@ -74,6 +78,9 @@ def test_full_vehicle_diagnosis_page(browser, vehicle_root: Path) -> None:
             assert row.find_elements("tag name", "td")[3].text == "coulomb friction"
             assert "sprung mass" in body and "pitch inertia (about the CoG)" in body
             assert "dry friction of about" in body and "30 % lower than at rr" in body
+            warning = d.find_element("css selector", ".fd-vehicle-warning").text
+            (note,) = read_vehicle_recording(vehicle_root / "car" / "before.h5").notes
+            assert warning == f"⚠ {note}" and "stretch, 3.0-45.0 s" in warning
             charts = d.find_elements("css selector", ".fd-vehicle-fit-chart")
             assert len(charts) == 2  # held-out traces of both drives
             series = wait_until(lambda: chart_series(d, ".fd-vehicle-fit-chart"),
