@@ -18,7 +18,7 @@ import numpy as np
 
 from fielddiag.channels import CORNERS
 from fielddiag.drive import accel_unit_factor, find_channel
-from fielddiag.errors import ChannelNotFoundError, SessionError
+from fielddiag.errors import ChannelNotFoundError
 from fielddiag.vehicle.geometry import VehicleFileError, VehicleGeometry
 
 __all__ = ["FULL_VEHICLE_ROLES", "VEHICLE_SIGNAL_ROLES", "VehicleRecording",

@@ -7,7 +7,6 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-
 from _vehicle_helpers import write_with_a_gap
 
 from fielddiag.cli import main
