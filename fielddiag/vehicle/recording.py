@@ -162,7 +162,8 @@ def read_vehicle_recording(path: str | os.PathLike, *, label: str = "",
     VehicleFileError
         The session holds no (or a bad) vehicle geometry.
     SessionError
-        Unreadable session, gaps or irregular time stamps.
+        Unreadable session or irregular time stamps (gaps are not an error: see
+        ``notes``).
     """
     from fielddiag.drive import _time_base
     from fielddiag.session import SessionReader
