@@ -1687,6 +1687,7 @@ def _diagnose(
         warnings.append(data_checks.DataWarning("data_problem_or_physics", rival_note))
     twin = _physics_twin(chosen, fits)
     undecided: frozenset[str] = frozenset()
+    twin_warning = None
     if twin is not None:
         # a data problem and physics that looks like it predict alike: the better one is
         # kept and the user is told both
@@ -1696,11 +1697,17 @@ def _diagnose(
             undecided = frozenset({kind})
             note += chosen.candidate.extra.get("moved", "")
         say("  " + note)
-        warnings.append(data_checks.DataWarning("data_problem_or_physics", note))
+        twin_warning = data_checks.DataWarning("data_problem_or_physics", note)
+        warnings.append(twin_warning)
+        twin_warning = twin_warning if kind == "channel_time_offset" else None
     lag = _lag_not_a_late_channel(chosen, fits, clipped)
     if lag is not None:
+        # the delay kept (alone, or as the twin of physics) is the suspension's lag: what
+        # was said of it as a data problem is withdrawn
         chosen, note = lag
         undecided = frozenset()
+        if twin_warning is not None:
+            warnings.remove(twin_warning)
         say("  " + note)
         warnings.append(data_checks.DataWarning("lag_of_the_suspension", note))
     if chosen.physics and chosen.physics != physics_fit.physics and chosen.data is not None:
