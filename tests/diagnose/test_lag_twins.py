@@ -88,6 +88,50 @@ def test_a_late_channel_beats_the_top_mount_that_looks_like_it():
     assert float(m[1]) == pytest.approx(c / offset[0].value, rel=0.01) and float(m[2]) > 0
 
 
+@pytest.mark.timeout(900)
+def test_the_lag_of_dry_friction_is_not_told_as_a_late_channel():
+    # 200 N of Dahl friction (pre-yield travel 0.1 mm): the library fits it as Coulomb
+    # friction and a hysteretic spring, which leaves a lag the delay of a late channel
+    # (+1.7 ms) predicts as well as a top mount does. Before session 34 the findings
+    # assumed the late channel. Above the middle of the band, where a late channel shows
+    # in full, the drives as recorded show 0.15 ms: the lag shrinks with frequency, as a
+    # hysteresis's does (a constant phase), so it is the suspension's
+    case = _case([("dahl_friction", {"friction_force_n": 200.0,
+                                     "friction_gradient_n_per_m": 0.0,
+                                     "yield_displacement_m": 1e-4})])
+    diag = diagnose_drives(rc.case_drives(case))
+    out = diag.to_dict()
+    assert out["data_problems"] == []
+    assert not any(w.kind == "channel_time_offset" for w in diag.data_problems())
+    note = next(w["message"] for w in out["warnings"] if w["kind"] == "lag_of_the_suspension")
+    m = re.search(r"\(\+([\d.]+) \+- [\d.]+ ms\) fits the residual's phase, but above "
+                  r"([\d.]+) Hz, where a late channel shows in full, the recording's channels "
+                  r"are ([+-][\d.]+) ms apart", note)
+    assert m, note
+    delay_ms, middle_hz, seen_ms = float(m[1]), float(m[2]), float(m[3])
+    assert delay_ms > 1.0 and abs(seen_ms) < 0.5 * delay_ms
+    band = out["band_hz"]
+    assert middle_hz == pytest.approx((band[0] * band[1]) ** 0.5, abs=0.05)
+    # the tie with a top mount it was kept as is withdrawn, not left saying the findings
+    # assume a late channel
+    assert not any("time offset" in w["message"] for w in out["warnings"]
+                   if w["kind"] == "data_problem_or_physics")
+    assert "coulomb_friction" in [f["effect"] for f in out["findings"]]
+
+
+@pytest.mark.timeout(900)
+def test_a_late_channel_beside_dry_friction_is_still_reported():
+    # the randomized generator's seed 1795817445 (60 s drives at 724 Hz): Dahl friction
+    # and a body channel 2.15 ms late. Above the middle of the band the drives show the
+    # delay in full (2.2 ms): reported
+    case = rc.draw_case(1795817445, duration_s=60.0)
+    assert [e for e, _ in case.effects] == ["dahl_friction"]
+    (late,) = [n for n in case.nuisances if n["kind"] == "time_offset"]
+    out = diagnose_drives(rc.case_drives(case)).to_dict()
+    (offset,) = [d for d in out["data_problems"] if d["kind"] == "channel_time_offset"]
+    assert abs(offset["value"]) == pytest.approx(late["value"], rel=0.1)
+    assert "lag_of_the_suspension" not in _kinds(out)
+
 
 @pytest.mark.timeout(900)
 def test_a_soft_top_mount_is_not_refitted_to_drives_its_delay_was_taken_from():
