@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+from collections.abc import Mapping
 from urllib.parse import quote
 
 from nicegui import ui
@@ -38,6 +39,14 @@ def page_title(text: str, subtitle: str = "") -> None:
     ui.label(text).classes("text-xl font-semibold mt-2")
     if subtitle:
         ui.label(subtitle).classes("text-sm text-gray-600 -mt-1")
+
+
+def warning_labels(result: object, mark: str, css_class: str = "") -> None:
+    """One amber line per warning of a result (strings, or dicts with a ``message``)."""
+    warnings = result.get("warnings") if isinstance(result, Mapping) else None
+    for w in warnings if isinstance(warnings, list) else []:
+        msg = w.get("message", str(w)) if isinstance(w, Mapping) else str(w)
+        ui.label(f"⚠ {msg}").classes(f"text-sm text-amber-800 {css_class}".strip()).mark(mark)
 
 
 def not_available(title: str, reason: str, hint: str = "") -> ui.card:

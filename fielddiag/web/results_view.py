@@ -23,6 +23,7 @@ from fielddiag.web.charts import (
     surface_options,
     xy_options,
 )
+from fielddiag.web.layout import warning_labels
 
 __all__ = [
     "find",
@@ -299,9 +300,7 @@ def render_identification(result: Mapping[str, Any]) -> None:
     ui.label("Parameters of the linear model (the diagnosis refits them with the physics it "
              "finds)").classes("text-base font-semibold mt-2")
     _parameter_table(result)
-    warnings = result.get("warnings") if isinstance(result, Mapping) else None
-    for w in warnings if isinstance(warnings, list) else []:
-        ui.label(f"⚠ {w}").classes("text-sm text-amber-800").mark("identify-warning")
+    warning_labels(result, "identify-warning")
     tr = _transmissibility(result)
     with ui.card().classes("w-full"):
         if tr is None:
@@ -580,9 +579,7 @@ def render_diagnosis(result: Mapping[str, Any], recording_view=None) -> None:
                  "The linear model is adequate: no missing physics found").classes(
             "text-lg font-semibold " + ("text-negative" if missing else "text-positive")).mark(
             "diagnosis-verdict")
-    for w in result.get("warnings") or []:
-        msg = w.get("message", str(w)) if isinstance(w, Mapping) else str(w)
-        ui.label(f"⚠ {msg}").classes("text-sm text-amber-800").mark("diagnosis-warning")
+    warning_labels(result, "diagnosis-warning")
     ride = result.get("ride_height")
     if isinstance(ride, Mapping) and ride.get("message"):
         ui.label(f"Ride height: {ride['message']}").classes("text-sm").mark(

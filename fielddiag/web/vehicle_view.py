@@ -14,6 +14,7 @@ from typing import Any
 from nicegui import ui
 
 from fielddiag.web.charts import xy_options
+from fielddiag.web.layout import warning_labels
 
 __all__ = ["car_svg", "corner_status", "is_full_vehicle_result", "render_vehicle_diagnosis",
            "render_vehicle_identification"]
@@ -145,19 +146,11 @@ def _body_table(model: Mapping[str, Any]) -> None:
         "max-w-3xl").mark("body-table")
 
 
-def _warnings(result: Mapping[str, Any]) -> None:
-    """The result's warnings (strings, or dicts with a ``message``), one line each."""
-    for w in result.get("warnings") or []:
-        msg = w.get("message", str(w)) if isinstance(w, Mapping) else str(w)
-        ui.label(f"⚠ {msg}").classes("text-sm text-amber-800 fd-vehicle-warning").mark(
-            "vehicle-warning")
-
-
 def render_vehicle_identification(result: Mapping[str, Any]) -> None:
     """Body, corners, anti-roll bars with standard deviations; cross-validation NRMSE."""
     ui.label("Full vehicle: identified parameters (± 1 std)").classes(
         "text-base font-semibold mt-2")
-    _warnings(result)
+    warning_labels(result, "vehicle-warning", "fd-vehicle-warning")
     with ui.row().classes("w-full items-start gap-6"):
         ui.html(car_svg(result), sanitize=False).mark("car-svg")
         with ui.column():
@@ -183,7 +176,7 @@ def render_vehicle_diagnosis(result: Mapping[str, Any]) -> None:
     ui.label(words.get(verdict, verdict)).classes(
         "text-lg font-semibold " + ("text-positive" if verdict == "adequate" else
                                     "text-negative")).mark("diagnosis-verdict")
-    _warnings(result)
+    warning_labels(result, "vehicle-warning", "fd-vehicle-warning")
     status = corner_status(result)
     model = result.get("augmented_model") or result.get("linear_model") or {}
     with ui.row().classes("w-full items-start gap-6"):

@@ -287,6 +287,7 @@ def test_a_drive_with_gaps_is_read_as_its_longest_gap_free_stretch_and_says_so(t
     it keeps the longest gap-free stretch and tells the user which, rather than refusing the
     drive."""
     from fielddiag.channels import ChannelSpec, Gap, SessionMetadata, SignalSpec
+    from fielddiag.errors import InsufficientDataError
     from fielddiag.session import write_session
     from fielddiag.vehicle.identify import VehicleIdentifyConfig, prepare_drive
     from fielddiag.vehicle.recording import SIGNAL_NAMES, full_vehicle_extra
@@ -322,5 +323,5 @@ def test_a_drive_with_gaps_is_read_as_its_longest_gap_free_stretch_and_says_so(t
     assert note == ("gappy.h5 has 2 gaps in its time base; the whole-car analysis uses its "
                     "longest gap-free stretch, 4.1-12.0 s (68 % of the samples)")
     # too short once cut: the refusal says why the drive is shorter than recorded
-    with pytest.raises(Exception, match=r"gappy.h5 lasts 7.9 s \(gappy.h5 has 2 gap"):
+    with pytest.raises(InsufficientDataError, match=r"gappy.h5 lasts 7.9 s \(gappy.h5 has 2 gap"):
         prepare_drive(rec, VehicleIdentifyConfig())
