@@ -290,6 +290,7 @@ def _grey_fit(
         n_params=model.n_params + (len(data.chain) if data is not None else 0),
         at_bound=_pinned(result, model, effects),
         extra={"model": model, "data": data},
+        corrections=tuple(h.kind for h in data.chain) if data is not None else (),
     )
     return _Fit(names, result, cand, runs, prepared, data)
 
@@ -1480,13 +1481,17 @@ def _diagnose(
             continue
         to_fit.append((e,))
 
-    def fit_single(combo: tuple[str, ...]) -> list[_Fit]:
-        f = grey(combo)
+    def fit_single(combo: tuple[str, ...], on: Sequence[_Prepared] = prepared,
+                   lin: _Fit = base) -> list[_Fit]:
+        """``combo`` fitted to the drives ``on`` (corrected for ``lin``'s data problem, if
+        any) and, where it acts on position and predicts better than ``lin``, to them with
+        the ride height restored too."""
+        f = grey(combo, on, None, lin.data)
         if f is None:
             return []
         if (mode == "pair" and f.candidate.physical and _acts_on_position(f)
-                and compare(base.candidate, f.candidate).t > 0.0):
-            fr = grey(combo, restored_on, _initial_from(f))
+                and compare(lin.candidate, f.candidate).t > 0.0):
+            fr = grey(combo, _with_ride_height(on, True), _initial_from(f), lin.data)
             if fr is not None:
                 return [f, fr]
         return [f]
@@ -1619,6 +1624,29 @@ def _diagnose(
             fits.extend(f for f in done if f is not None)
         return lin
 
+    def physics_behind(lin: _Fit) -> _Fit | None:
+        """The physics a data problem hid: on the drives corrected for it (``lin``: the
+        linear model fitted to them), every effect whose signature predicts held-out data
+        better than the linear model's there, fitted; the best that beats ``lin`` as an
+        effect must beat the linear model (None when none does)."""
+        problems = " and the ".join(_DATA_LABEL[h.kind] for h in lin.data.chain)
+        say(f"looking for physics behind the {problems}")
+        sig = map_threads(lambda e: signature_left((e,), lin.prepared), list(effects),
+                          cost=lambda e: _cost((e,)))
+        hopeful = [(e,) for e, t in zip(effects, sig, strict=True) if t >= STATEFUL_SCREEN_T]
+        if not hopeful:
+            return None
+        found = [f for out in map_threads(lambda c: fit_single(c, lin.prepared, lin),
+                                          hopeful, cost=cost) for f in out]
+        fits.extend(found)
+        wins = [f for f in found if f.candidate.physical and compare(
+            lin.candidate, f.candidate).beats(f.candidate.n_params - lin.candidate.n_params)]
+        if not wins:
+            return None
+        best = min(wins, key=lambda f: f.candidate.mse_validation)
+        say(f"  {' + '.join(best.physics)} on the drives corrected for the {problems}")
+        return best
+
     # data problems compete with the physics: each is corrected and the models refitted
     offset_fit = None
     for hyp in hypotheses:
@@ -1710,6 +1738,13 @@ def _diagnose(
             warnings.remove(twin_warning)
         say("  " + note)
         warnings.append(data_checks.DataWarning("lag_of_the_suspension", note))
+    if chosen.data is not None and not chosen.physics and chosen.candidate.physical:
+        # a data problem that acts on every block can hide physics that acts in a few
+        # events (a late channel's misfit everywhere, a bump stop's in five bumps): on the
+        # drives corrected for it, each effect is screened and fitted again
+        hidden = physics_behind(chosen)
+        if hidden is not None:
+            chosen = hidden
     if chosen.physics and chosen.physics != physics_fit.physics and chosen.data is not None:
         # a data problem plus physics the uncorrected data did not choose: fine, but say so
         say(f"  with the {_DATA_LABEL[chosen.data.kind]} corrected: "
@@ -1881,7 +1916,7 @@ def _decisive_data_problem(chosen: _Fit, fits: Sequence[_Fit]) -> tuple[_Fit, st
             # which no passive suspension does: decisive, unless it predicts worse
             if _gain_stands(f.data, cmp.t):
                 return f, None
-        elif cmp.t >= MIN_T_SIGNIFICANT and cmp.relative_gain > 0:
+        elif cmp.t >= MIN_T_SIGNIFICANT and cmp.gain(everywhere=True) > 0:
             found = _physics_rival(chosen, f, fits)
             if found is None:
                 return f, None

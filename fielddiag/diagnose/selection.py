@@ -69,23 +69,35 @@ def paired_block_t(
         t = paired_block_t(linear.residual_validation, friction.residual_validation)
         t >= MIN_T   # friction predicts the held-out data significantly better
     """
+    d = block_log_ratios(residual_a, residual_b, n_blocks)
+    sd = float(d.std(ddof=1))
+    # equal log ratios give sd of a few ulp (the mean of equal numbers is not exact)
+    if sd <= 1e-12 * abs(float(d.mean())) or sd == 0.0:
+        return np.inf if d.mean() > 0 else 0.0
+    return float(d.mean() / (sd / np.sqrt(d.size)))
+
+
+def block_log_ratios(
+    residual_a: np.ndarray, residual_b: np.ndarray, n_blocks: int = N_BLOCKS
+) -> np.ndarray:
+    """Per-block log(MSE_a / MSE_b) of two residuals on the same samples.
+
+    The samples are cut into ``n_blocks`` contiguous blocks (fewer when there are less
+    than 50 samples a block, at least 2); positive entries favour b. The sample
+    :func:`paired_block_t` tests.
+    """
     a = np.asarray(residual_a, float) ** 2
     b = np.asarray(residual_b, float) ** 2
     n = min(a.size, b.size)
     k = max(2, min(n_blocks, n // 50))
     edges = np.linspace(0, n, k + 1).astype(int)
     tiny = 1e-300
-    d = np.array(
+    return np.array(
         [
             np.log((a[i:j].mean() + tiny) / (b[i:j].mean() + tiny))
             for i, j in zip(edges[:-1], edges[1:], strict=True)
         ]
     )
-    sd = float(d.std(ddof=1))
-    # equal log ratios give sd of a few ulp (the mean of equal numbers is not exact)
-    if sd <= 1e-12 * abs(float(d.mean())) or sd == 0.0:
-        return np.inf if d.mean() > 0 else 0.0
-    return float(d.mean() / (sd / np.sqrt(k)))
 
 
 @dataclass
@@ -112,6 +124,9 @@ class CandidateFit:
         chosen).
     extra : dict
         What the caller wants to keep with the fit (the model, the data hypothesis).
+    corrections : tuple of str
+        The names in ``effects`` that correct the recording rather than model the
+        suspension (a late channel, a gain change): they act alike on every block.
     """
 
     effects: tuple[str, ...]
@@ -123,6 +138,12 @@ class CandidateFit:
     n_params: int
     at_bound: tuple[str, ...] = ()
     extra: dict = field(default_factory=dict)
+    corrections: tuple[str, ...] = ()
+
+    def adds_corrections_only(self, reference: CandidateFit) -> bool:
+        """True if all this model adds to ``reference`` are corrections of the recording."""
+        added = set(self.effects) - set(reference.effects)
+        return bool(added) and added <= set(self.corrections)
 
     @property
     def mse_validation(self) -> float:
@@ -146,25 +167,44 @@ class Comparison:
         candidate).
     relative_gain : float
         Reduction of held-out mean-square error as a fraction of the reference's.
+    typical_gain : float
+        Reduction of the typical block's mean-square error: one minus the geometric mean of
+        the blocks' MSE ratios (candidate over reference).
     """
 
     t: float
     relative_gain: float  # reduction of held-out MSE, fraction of the reference's
+    typical_gain: float = 0.0  # the same in the typical block (geometric mean of ratios)
 
-    def beats(self, extra_params: int) -> bool:
+    def gain(self, everywhere: bool = False) -> float:
+        """The reduction of held-out MSE that fits what the candidate adds.
+
+        Physics acts where the suspension goes (a bump stop in a few events, which then
+        dominate the held-out MSE): its gain is the whole MSE's. A correction of the
+        recording (a late channel, a gain change: ``everywhere``) acts alike in every block:
+        its gain is the typical block's, which a few events the model still misfits (and
+        the correction moves a little either way) do not swamp.
+        """
+        return self.typical_gain if everywhere else self.relative_gain
+
+    def beats(self, extra_params: int, everywhere: bool = False) -> bool:
         """True if the candidate is significantly and usefully better than the reference.
 
         Parameters
         ----------
         extra_params : int
             Parameters the candidate has beyond the reference.
+        everywhere : bool
+            What it adds acts alike in every block (a data problem's correction): judged
+            by the typical block's gain (:meth:`gain`).
 
         Returns
         -------
         bool
-            ``t >= MIN_T`` and ``relative_gain >= MIN_GAIN_PER_PARAM * max(1, extra_params)``.
+            ``t >= MIN_T`` and ``gain >= MIN_GAIN_PER_PARAM * max(1, extra_params)``.
         """
-        return self.t >= MIN_T and self.relative_gain >= MIN_GAIN_PER_PARAM * max(1, extra_params)
+        return self.t >= MIN_T and self.gain(everywhere) >= MIN_GAIN_PER_PARAM * max(
+            1, extra_params)
 
 
 def compare(reference: CandidateFit, candidate: CandidateFit) -> Comparison:
@@ -182,7 +222,9 @@ def compare(reference: CandidateFit, candidate: CandidateFit) -> Comparison:
     """
     t = paired_block_t(reference.residual_validation, candidate.residual_validation)
     gain = 1.0 - candidate.mse_validation / reference.mse_validation
-    return Comparison(t, gain)
+    typical = 1.0 - float(np.exp(-np.mean(block_log_ratios(
+        reference.residual_validation, candidate.residual_validation))))
+    return Comparison(t, gain, typical)
 
 
 @dataclass
@@ -214,8 +256,9 @@ def select_model(baseline: CandidateFit, candidates: Sequence[CandidateFit]) -> 
     """Pick the simplest model that predicts held-out data significantly better.
 
     Single effects are compared with the baseline; a pair of effects must also beat the
-    best single effect it contains. Candidates with a parameter pinned at a bound are
-    unphysical and never chosen.
+    best single effect it contains. What corrects the recording only is judged by its gain
+    in the typical block (:meth:`Comparison.gain`). Candidates with a parameter pinned at
+    a bound are unphysical and never chosen.
 
     Parameters
     ----------
@@ -244,18 +287,21 @@ def select_model(baseline: CandidateFit, candidates: Sequence[CandidateFit]) -> 
     singles = [
         (c, cmp)
         for c, cmp in ok
-        if len(c.effects) == 1 and cmp.beats(c.n_params - baseline.n_params)
+        if len(c.effects) == 1
+        and cmp.beats(c.n_params - baseline.n_params, c.adds_corrections_only(baseline))
     ]
     if singles:
         chosen, chosen_cmp = singles[0]
     for c, cmp in ok:
-        if len(c.effects) < 2 or not cmp.beats(c.n_params - baseline.n_params):
+        if len(c.effects) < 2 or not cmp.beats(
+            c.n_params - baseline.n_params, c.adds_corrections_only(baseline)
+        ):
             continue
         if chosen is baseline:
             chosen, chosen_cmp = c, cmp
             break
         if set(chosen.effects) <= set(c.effects) and compare(chosen, c).beats(
-            c.n_params - chosen.n_params
+            c.n_params - chosen.n_params, c.adds_corrections_only(chosen)
         ):
             chosen, chosen_cmp = c, cmp
             break
