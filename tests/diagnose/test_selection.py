@@ -136,6 +136,43 @@ def test_beats_needs_both_the_t_threshold_and_the_gain_per_parameter():
     assert Comparison(MIN_T, g).beats(0)  # at least one parameter's worth of gain
 
 
+def test_typical_gain_is_the_geometric_mean_of_the_block_ratios():
+    # 29 blocks halved in amplitude (MSE ratio 1/4), one block (the bump-stop hits) 20x
+    # larger in the reference and 30 % worse in the candidate: the mean square rises, the
+    # typical block gains 1 - exp(mean log ratio)
+    a = _white(10)
+    a[:100] *= 20.0
+    b = 0.5 * a
+    b[:100] = a[:100] * math.sqrt(1.3)
+    cmp = compare(_fit((), a, 3), _fit(("channel_time_offset",), b, 4))
+    log_ratios = [math.log(4.0)] * 29 + [math.log(1 / 1.3)]
+    assert cmp.typical_gain == pytest.approx(1 - math.exp(-sum(log_ratios) / 30), rel=1e-9)
+    assert cmp.relative_gain < 0  # the hits' block dominates the mean square
+    assert cmp.gain() == cmp.relative_gain and cmp.gain(everywhere=True) == cmp.typical_gain
+    # as physics it fails the gain per parameter; as a correction of the recording it wins
+    assert not cmp.beats(1) and cmp.beats(1, everywhere=True)
+
+
+def test_a_correction_of_the_recording_is_chosen_by_its_typical_gain():
+    a = _white(11)
+    a[:100] *= 20.0
+    b = 0.5 * a
+    b[:100] = a[:100] * math.sqrt(1.3)
+    base = _fit((), a, 3)
+    as_physics = _fit(("bump_stop",), b, 4)
+    as_correction = CandidateFit(("channel_time_offset",), {}, {}, 0.0, 0.0, b, 4,
+                                 corrections=("channel_time_offset",))
+    assert as_correction.adds_corrections_only(base)
+    assert not as_physics.adds_corrections_only(base)
+    assert select_model(base, [as_physics]).chosen is base
+    assert select_model(base, [as_correction]).chosen is as_correction
+    # physics on top of a chosen correction is physics: judged by the mean square
+    both = CandidateFit(("channel_time_offset", "bump_stop"), {}, {}, 0.0, 0.0, 0.9 * b, 5,
+                        corrections=("channel_time_offset",))
+    assert not both.adds_corrections_only(as_correction)
+    assert both.adds_corrections_only(as_physics)
+
+
 # ------------------------------------------------------------------------------- select_model
 
 
