@@ -1627,8 +1627,8 @@ def _diagnose(
     def physics_behind(lin: _Fit) -> _Fit | None:
         """The physics a data problem hid: on the drives corrected for it (``lin``: the
         linear model fitted to them), every effect whose signature predicts held-out data
-        better than the linear model's there, fitted; the best that beats ``lin`` as an
-        effect must beat the linear model (None when none does)."""
+        better than the linear model's there is fitted; the one with the lowest held-out
+        error among those that beat ``lin`` by the selection's rule (None when none does)."""
         problems = " and the ".join(_DATA_LABEL[h.kind] for h in lin.data.chain)
         say(f"looking for physics behind the {problems}")
         sig = map_threads(lambda e: signature_left((e,), lin.prepared), list(effects),

@@ -69,7 +69,11 @@ def paired_block_t(
         t = paired_block_t(linear.residual_validation, friction.residual_validation)
         t >= MIN_T   # friction predicts the held-out data significantly better
     """
-    d = block_log_ratios(residual_a, residual_b, n_blocks)
+    return _block_t(block_log_ratios(residual_a, residual_b, n_blocks))
+
+
+def _block_t(d: np.ndarray) -> float:
+    """Mean over standard error of the block log ratios ``d`` (see :func:`paired_block_t`)."""
     sd = float(d.std(ddof=1))
     # equal log ratios give sd of a few ulp (the mean of equal numbers is not exact)
     if sd <= 1e-12 * abs(float(d.mean())) or sd == 0.0:
@@ -220,11 +224,9 @@ def compare(reference: CandidateFit, candidate: CandidateFit) -> Comparison:
     Comparison
         The paired-block t statistic and the relative reduction of held-out MSE.
     """
-    t = paired_block_t(reference.residual_validation, candidate.residual_validation)
+    d = block_log_ratios(reference.residual_validation, candidate.residual_validation)
     gain = 1.0 - candidate.mse_validation / reference.mse_validation
-    typical = 1.0 - float(np.exp(-np.mean(block_log_ratios(
-        reference.residual_validation, candidate.residual_validation))))
-    return Comparison(t, gain, typical)
+    return Comparison(_block_t(d), gain, 1.0 - float(np.exp(-d.mean())))
 
 
 @dataclass
