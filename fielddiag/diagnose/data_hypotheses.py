@@ -70,6 +70,9 @@ class DataHypothesis:
     #: levels and the transmissibility's level each at least MIN_Z std from zero, same
     #: sign, within 3 std of each other
     confirmed: bool = False
+    #: the physics the estimate was refined against (a delay measured against the model
+    #: with that physics): its correction competes only beside that physics
+    refined_with: tuple[str, ...] = ()
 
     @property
     def chain(self) -> list[DataHypothesis]:

@@ -1556,9 +1556,11 @@ def _diagnose(
             return float("inf")
         return paired_block_t(lin_ee.residual_validation, ee.residual_validation)
 
-    def test_data(hyp: DataHypothesis, lin: _Fit | None = None) -> _Fit | None:
+    def test_data(hyp: DataHypothesis, lin: _Fit | None = None,
+                  known: Sequence[_Fit] = ()) -> _Fit | None:
         """Correct the drives for ``hyp`` and refit the linear model (unless ``lin`` is
-        its fit to them already) and the physics."""
+        its fit to them already) and the physics (but what ``known`` holds: fits to the
+        same corrected drives made already)."""
         on = _with_ride_height([_prepare(d, band, rate, holdout_fraction)
                                 for d in correct_drives(drives, hyp)], physics_fit.restored)
         lin = lin or grey((), on, _initial_from(base), hyp)
@@ -1618,11 +1620,50 @@ def _diagnose(
                     tasks.append((combo, _with_ride_height(prepared, physics_fit.restored),
                                   start if near else None, None))
             screen([t[0] for t in tasks[len(refit):] if t[2] is None and len(t[0]) > 1])
-            done = map_threads(lambda t: grey(*t), tasks, cost=lambda t: _cost(t[0]))
-            if refit and done[0] is not None:
-                done[0].candidate.extra["moved"] = lin.candidate.extra["moved"]
+            made = {f.physics for f in known}
+            done = list(known) + map_threads(
+                lambda t: grey(*t), [t for t in tasks if t[0] not in made],
+                cost=lambda t: _cost(t[0]))
+            for f in done:
+                if f is not None and f.physics == physics_fit.physics and f.data is hyp:
+                    f.candidate.extra["moved"] = lin.candidate.extra["moved"]
             fits.extend(f for f in done if f is not None)
         return lin
+
+    def delay_against_physics(hyp: DataHypothesis) -> tuple[DataHypothesis, _Fit] | None:
+        """The channel time offset ``hyp`` (refined against the linear model) refined
+        against the chosen physics instead, less what looks like a delay itself (a top
+        mount), and that physics' fit to the drives corrected for it; None where the two
+        estimates agree within two standard deviations, or the physics cannot be fitted.
+
+        Physics the linear model leaves out pulls a delay measured against it: hysteresis
+        lags like a late channel, a bump stop's misfit in its events leans the estimate."""
+        phys = tuple(e for e in physics_fit.effects if hyp.kind not in EFFECTS[e].data_twins)
+        if not phys:
+            return None
+        refined, fit = hyp, None
+        for _ in range(4):
+            on = _with_ride_height([_prepare(d, band, rate, holdout_fraction)
+                                    for d in correct_drives(drives, refined)],
+                                   physics_fit.restored)
+            fit = grey(phys, on, _initial_from(physics_fit), refined)
+            if fit is None or not fit.candidate.physical:
+                return None
+            step = _residual_delay_s(fit, substeps=2, clipped=clipped)
+            if abs(step) <= hyp.std:
+                break
+            refined = replace(refined, value=refined.value + step, refined_with=phys)
+            say(f"  refined against {' + '.join(phys)} to {_data_size(refined)}")
+        else:
+            return None
+        if abs(refined.value - hyp.value) <= 2.0 * hyp.std:
+            return None
+        if refined.z < MIN_Z:
+            # the physics takes up the whole delay: no data problem left to compete
+            say(f"  against {' + '.join(phys)} the delay is {_data_size(refined)}: "
+                "not told from none")
+            return None
+        return refined, fit
 
     def physics_behind(lin: _Fit) -> _Fit | None:
         """The physics a data problem hid: on the drives corrected for it (``lin``: the
@@ -1682,6 +1723,15 @@ def _diagnose(
         lin = test_data(hyp, converged)
         if lin is not None and hyp.kind == "channel_time_offset":
             offset_fit = lin
+            if physics_fit is not base:
+                # the delay measured against the physics competes too
+                say(f"refining the {_DATA_LABEL[hyp.kind]} against "
+                    f"{' + '.join(physics_fit.physics)}")
+                again = delay_against_physics(hyp)
+                if again is not None:
+                    say(f"testing a {_DATA_LABEL[hyp.kind]} ({_data_size(again[0])}) "
+                        "against the physics")
+                    test_data(*again[:1], known=again[1:])
     if fd is not None and offset_fit is not None:
         # a gain change hides behind a delay in the transmissibilities: estimated again
         # on the drives corrected for the delay, and tested on top of it
@@ -1696,8 +1746,7 @@ def _diagnose(
                 test_data(g)
     # a data problem whose refined estimate is within MIN_Z standard deviations of zero is
     # not told from none: its corrected fits do not compete
-    sel = select_model(base.candidate, [f.candidate for f in fits[1:] if f.data is None
-                                        or all(h.z >= MIN_Z for h in f.data.chain)])
+    sel = select_model(base.candidate, [f.candidate for f in fits[1:] if _competes(f)])
     chosen = next(f for f in fits if f.candidate is sel.chosen)
     gain = _decisive_gain_elsewhere(chosen, physics_fit, fits)
     if gain is not None:
@@ -1892,6 +1941,14 @@ _DATA_LABEL = {
 }
 
 
+def _competes(fit: _Fit) -> bool:
+    """Whether ``fit`` competes in the selection: a data problem whose estimate is within
+    MIN_Z standard deviations of zero is not told from none, and one refined against
+    physics (:attr:`DataHypothesis.refined_with`) holds only beside that physics."""
+    return fit.data is None or all(
+        h.z >= MIN_Z and set(h.refined_with) <= set(fit.physics) for h in fit.data.chain)
+
+
 def _decisive_data_problem(chosen: _Fit, fits: Sequence[_Fit]) -> tuple[_Fit, str | None]:
     """A data problem estimated decisively (:data:`~.data_hypotheses.DECISIVE_Z`), on top
     of what the chosen model corrects, that also predicts the held-out data better; and
@@ -1907,7 +1964,7 @@ def _decisive_data_problem(chosen: _Fit, fits: Sequence[_Fit]) -> tuple[_Fit, st
         # one more data problem on top of what the chosen model corrects already
         if (f.data is None or f.data.prior != chosen.data or f.physics != chosen.physics
                 or f.restored != chosen.restored or f.data.z < DECISIVE_Z
-                or not f.candidate.physical):
+                or not f.candidate.physical or not _competes(f)):
             continue
         cmp = compare(chosen.candidate, f.candidate)
         if f.data.kind == "sensor_gain_changed":
@@ -2173,8 +2230,7 @@ def _data_beside_clipping(base: _Fit, fits: Sequence[_Fit], clipped: dict[str, n
     data away from the clipped readings best, where it beats the uncorrected linear model
     there (:func:`_clipping_competes`; both fitted again away from the clipped readings,
     as the physics is); with its words. None where none does."""
-    cands = [f for f in fits if not f.physics and f.data is not None
-             and all(h.z >= MIN_Z for h in f.data.chain)]
+    cands = [f for f in fits if not f.physics and f.data is not None and _competes(f)]
     if not cands:
         return None
     away = map_threads(lambda f: _fit_away_from_clipping((), f, coupling, clipped,
