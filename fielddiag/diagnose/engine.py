@@ -1641,16 +1641,21 @@ def _diagnose(
         phys = tuple(e for e in physics_fit.effects if hyp.kind not in EFFECTS[e].data_twins)
         if not phys:
             return None
-        refined, fit = hyp, None
-        for _ in range(4):
-            on = _with_ride_height([_prepare(d, band, rate, holdout_fraction)
-                                    for d in correct_drives(drives, refined)],
-                                   physics_fit.restored)
-            fit = grey(phys, on, _initial_from(physics_fit), refined)
+        # the physics fitted to the drives corrected for ``hyp`` already, where it was
+        refined = hyp
+        fit = next((f for f in fits if f.data is hyp and f.physics == phys
+                    and f.restored == physics_fit.restored), None)
+        for i in range(4):
+            if fit is None or refined is not hyp:
+                on = _with_ride_height([_prepare(d, band, rate, holdout_fraction)
+                                        for d in correct_drives(drives, refined)],
+                                       physics_fit.restored)
+                fit = grey(phys, on, _initial_from(physics_fit), refined)
             if fit is None or not fit.candidate.physical:
                 return None
             step = _residual_delay_s(fit, substeps=2, clipped=clipped)
-            if abs(step) <= hyp.std:
+            if abs(step) <= (2.0 if i == 0 else 1.0) * hyp.std:
+                # (at once within two std of the linear model's estimate: the same)
                 break
             refined = replace(refined, value=refined.value + step, refined_with=phys)
             say(f"  refined against {' + '.join(phys)} to {_data_size(refined)}")
