@@ -2314,6 +2314,10 @@ def _lag_not_a_late_channel(chosen: _Fit, fits: Sequence[_Fit],
     band = chosen.result.band_hz
     if hyp is None or not band:
         return None
+    if any(hyp.kind in EFFECTS[e].data_twins for e in chosen.physics):
+        # a top mount delays the damper's force at every frequency: fitted to the drives
+        # as recorded it takes up a late channel above the middle too, and says nothing
+        return None
     rest = [h.kind for h in chain if h is not hyp]
     ref = next((f for f in fits if f.physics == chosen.physics and f.restored == chosen.restored
                 and [h.kind for h in (f.data.chain if f.data else [])] == rest
