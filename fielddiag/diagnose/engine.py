@@ -1641,6 +1641,7 @@ def _diagnose(
         phys = tuple(e for e in physics_fit.effects if hyp.kind not in EFFECTS[e].data_twins)
         if not phys:
             return None
+        say(f"refining the {_DATA_LABEL[hyp.kind]} against {' + '.join(phys)}")
         # the physics fitted to the drives corrected for ``hyp`` already, where it was
         refined = hyp
         fit = next((f for f in fits if f.data is hyp and f.physics == phys
@@ -1730,8 +1731,6 @@ def _diagnose(
             offset_fit = lin
             if physics_fit is not base:
                 # the delay measured against the physics competes too
-                say(f"refining the {_DATA_LABEL[hyp.kind]} against "
-                    f"{' + '.join(physics_fit.physics)}")
                 again = delay_against_physics(hyp)
                 if again is not None:
                     say(f"testing a {_DATA_LABEL[hyp.kind]} ({_data_size(again[0])}) "
