@@ -1651,7 +1651,8 @@ def _diagnose(
                 on = _with_ride_height([_prepare(d, band, rate, holdout_fraction)
                                         for d in correct_drives(drives, refined)],
                                        physics_fit.restored)
-                fit = grey(phys, on, _initial_from(physics_fit), refined)
+                # started where the fit to the drives corrected for the last estimate ended
+                fit = grey(phys, on, _initial_from(fit or physics_fit), refined)
             if fit is None or not fit.candidate.physical:
                 return None
             step = _residual_delay_s(fit, substeps=2, clipped=clipped)
@@ -1660,6 +1661,9 @@ def _diagnose(
                 break
             refined = replace(refined, value=refined.value + step, refined_with=phys)
             say(f"  refined against {' + '.join(phys)} to {_data_size(refined)}")
+            if refined.z < MIN_Z and abs(refined.value) < abs(refined.value - step):
+                # on its way to none and not told from it already: it cannot compete
+                break
         else:
             return None
         if abs(refined.value - hyp.value) <= 2.0 * hyp.std:
