@@ -1556,13 +1556,17 @@ def _diagnose(
             return float("inf")
         return paired_block_t(lin_ee.residual_validation, ee.residual_validation)
 
+    def corrected(hyp: DataHypothesis, restored: bool) -> list[_Prepared]:
+        """The drives corrected for ``hyp``, prepared, at the ride height ``restored``."""
+        return _with_ride_height([_prepare(d, band, rate, holdout_fraction)
+                                  for d in correct_drives(drives, hyp)], restored)
+
     def test_data(hyp: DataHypothesis, lin: _Fit | None = None,
                   known: Sequence[_Fit] = ()) -> _Fit | None:
         """Correct the drives for ``hyp`` and refit the linear model (unless ``lin`` is
         its fit to them already) and the physics (but what ``known`` holds: fits to the
         same corrected drives made already)."""
-        on = _with_ride_height([_prepare(d, band, rate, holdout_fraction)
-                                for d in correct_drives(drives, hyp)], physics_fit.restored)
+        on = corrected(hyp, physics_fit.restored)
         lin = lin or grey((), on, _initial_from(base), hyp)
         if lin is None:
             return None
@@ -1648,9 +1652,7 @@ def _diagnose(
                     and f.restored == physics_fit.restored), None)
         for i in range(4):
             if fit is None or refined is not hyp:
-                on = _with_ride_height([_prepare(d, band, rate, holdout_fraction)
-                                        for d in correct_drives(drives, refined)],
-                                       physics_fit.restored)
+                on = corrected(refined, physics_fit.restored)
                 # started where the fit to the drives corrected for the last estimate ended
                 fit = grey(phys, on, _initial_from(fit or physics_fit), refined)
             if fit is None or not fit.candidate.physical:
@@ -1761,8 +1763,7 @@ def _diagnose(
         # a decisive gain change was tested on the physics first chosen, and the selection
         # went on to other physics (a top mount beside it): the gain is the sensor's, not
         # the physics', so the chosen physics is fitted to the drives corrected for it too
-        on = _with_ride_height([_prepare(d, band, rate, holdout_fraction)
-                                for d in correct_drives(drives, gain)], chosen.restored)
+        on = corrected(gain, chosen.restored)
         refit = grey(chosen.physics, on, _initial_from(chosen), gain)
         if refit is not None:
             fits.append(refit)
