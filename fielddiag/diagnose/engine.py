@@ -254,11 +254,14 @@ def _grey_fit(
     mass_bounds_kg: tuple[float, float] | None = None,
     data: DataHypothesis | None = None,
     fit_parts: Sequence[GreyBoxData] | None = None,
+    warm: bool = False,
 ) -> _Fit:
     """Grey-box fit of the linear model plus ``effects`` on the fit part of every drive
     (or on ``fit_parts``: stretches of them), scored on the held-out part. With a data
     hypothesis, ``prepared`` holds the corrected drives and the held-out residuals are
-    returned in the recording's units."""
+    returned in the recording's units. ``warm``: ``initial`` is where a fit of the same
+    model to nearly the same drives ended, so the continuation over short horizons (a way
+    to the answer from afar) is skipped."""
     model = _model(effects, coupling)
     fits = [p.fit for p in prepared] if fit_parts is None else list(fit_parts)
     if initial:
@@ -269,6 +272,7 @@ def _grey_fit(
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
         result = fit_greybox(fits, model, initial=initial, substeps=substeps, max_iterations=40,
                              ftol=FIT_CHI2_STEP / sum(f.n_samples for f in fits),
+                             **({"horizons_s": None} if warm else {}),
                              mass_bounds_kg=mass_bounds_kg if absolute else None)
         runs = validation_runs(result, [p.val for p in prepared], substeps=substeps)
     if data is not None:
@@ -335,8 +339,10 @@ def _equation_error_fit(
     coupling: bool,
     absolute: bool,
     start: dict[str, float] | None = None,
+    fit_limit_s: float | None = None,
 ) -> _EquationErrorFit:
-    """Fit (M + dM) a2 + dM g = F(r + r0, rdot, x2) on the fit part of every drive.
+    """Fit (M + dM) a2 + dM g = F(r + r0, rdot, x2) on the fit part of every drive (its
+    first ``fit_limit_s`` seconds where given), scored on the whole held-out part.
 
     ``r`` is the measured (integrated, band-limited) suspension extension; ``r0`` the static
     extension of each loaded drive (a free parameter per drive with added mass, fixed by
@@ -347,11 +353,12 @@ def _equation_error_fit(
     start = start or {}
     loaded = [k for k, p in enumerate(prepared) if p.fit.added_mass_kg != 0.0] if absolute else []
 
-    def stack(part: str):
+    def stack(part: str, limit_s: float | None = None):
         cols = {"r": [], "v": [], "x": [], "a": [], "dm": [], "sess": [], "fs": []}
         for k, p in enumerate(prepared):
             d = getattr(p, part)
-            r, rdot, x2, a2 = _states(d)
+            n = None if limit_s is None else max(int(limit_s * d.sample_rate_hz), 1)
+            r, rdot, x2, a2 = (v[:n] for v in _states(d))
             cols["r"].append(r)
             cols["v"].append(rdot)
             cols["x"].append(x2)
@@ -361,7 +368,7 @@ def _equation_error_fit(
             cols["fs"].append(np.full(r.size, d.sample_rate_hz))
         return {key: np.concatenate(v) for key, v in cols.items()}
 
-    fit, val = stack("fit"), stack("val")
+    fit, val = stack("fit", fit_limit_s), stack("val")
     n_th = model.n_params
     th0 = []
     own_start: dict[str, float] = {}
@@ -1003,6 +1010,11 @@ STATEFUL_SCREEN_T = 1.0
 #: of what the other effect's signature gains alone over the linear model's (held-out
 #: mean square): 0.4 % for Dahl and Bouc-Wen hysteresis together, two models of one loop.
 STATEFUL_PAIR_MIN_SHARE = 0.1
+#: A pair's signature is fitted on at most this much of each drive's fit part [s] (and
+#: scored on the whole held-out part): two effects with internal states may take tens of
+#: RK4 substeps a sample (a stiff top mount beside hysteresis: 14 s of a 2 x 300 s
+#: diagnosis on 200 s a drive), and a signature only decides whether the pair is fitted.
+PAIR_SCREEN_FIT_S = 100.0
 
 
 def _pair_screen(combo: tuple[str, ...], ee_fits: dict, ee_base: _EquationErrorFit
@@ -1400,7 +1412,8 @@ def _diagnose(
             start.update(ee_fits[(e,)].values if (e,) in ee_fits else {})
         t0 = time.perf_counter()
         try:
-            ee = _equation_error_fit(combo, prepared, coupling, absolute, start)
+            ee = _equation_error_fit(combo, prepared, coupling, absolute, start,
+                                     PAIR_SCREEN_FIT_S if len(combo) > 1 else None)
         except (ValueError, np.linalg.LinAlgError):
             return None
         finally:
@@ -1431,7 +1444,7 @@ def _diagnose(
 
     def grey(combo: tuple[str, ...], on: Sequence[_Prepared] = prepared,
              start: dict[str, float] | None = None,
-             data: DataHypothesis | None = None) -> _Fit | None:
+             data: DataHypothesis | None = None, warm: bool = False) -> _Fit | None:
         what = " + ".join(combo) if combo else "the linear model"
         say(f"fitting {what}" + (f" to drives corrected for a {_DATA_LABEL[data.kind]}"
                                  if data is not None else ""))
@@ -1440,7 +1453,7 @@ def _diagnose(
                 screen([combo])
             start = ee_fits[combo].values if combo in ee_fits else _initial_from(base)
         try:
-            return _grey_fit(combo, on, coupling, start, 2, mass_bounds, data)
+            return _grey_fit(combo, on, coupling, start, 2, mass_bounds, data, warm=warm)
         except (FieldDiagError, np.linalg.LinAlgError, FloatingPointError) as exc:
             say(f"  {what} could not be fitted: {exc}")
             return None
@@ -1654,7 +1667,7 @@ def _diagnose(
             if fit is None or refined is not hyp:
                 on = corrected(refined, physics_fit.restored)
                 # started where the fit to the drives corrected for the last estimate ended
-                fit = grey(phys, on, _initial_from(fit or physics_fit), refined)
+                fit = grey(phys, on, _initial_from(fit or physics_fit), refined, warm=True)
             if fit is None or not fit.candidate.physical:
                 return None
             step = _residual_delay_s(fit, substeps=2, clipped=clipped)
