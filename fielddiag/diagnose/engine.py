@@ -1860,9 +1860,10 @@ def _diagnose(
             fits.append(other)
     say("looking for structure no effect explains")
     surface_reported, base_for_surface = None, base
-    if chosen.data is not None and chosen.physics and clip_note is None:
-        # physics chosen on drives corrected for a data problem: the surface competes on
-        # the same corrected drives, against the linear model corrected alike
+    if chosen.data is not None and clip_note is None:
+        # a data problem chosen (with physics or without): the surface competes on the
+        # same corrected drives, against the linear model corrected alike (a correction
+        # never hides a shape the library cannot name)
         lin = next((f for f in fits if not f.physics and f.data is chosen.data), None)
         if lin is not None:
             say("fitting the force surface to the drives corrected for the "
@@ -1895,7 +1896,25 @@ def _diagnose(
         near = _near_clipping(chosen.runs, clipped)
         share = float(near.mean()) if near is not None else 0.0
         away = unexplained
-        if share <= CLIP_DOMINATES:
+        surface_note = None
+        if surface_reported is not None and share <= CLIP_DOMINATES:
+            # a force surface that predicts better competes with the clipping as physics
+            # does: it and the linear model fitted again away from the clipped readings,
+            # and compared there (its held-out gain, not the residual's structure, is
+            # what it stands on: a strong effect clips the peaks where it acts most)
+            say("fitting the linear model and the force surface away from the clipped "
+                "readings")
+            ref = base_for_surface
+            pair = map_threads(lambda eff: _fit_away_from_clipping(
+                eff, ref, coupling, clipped, mass_bounds), [(), (SURFACE,)], cost=_cost)
+            surface_note = _clipping_competes(
+                *(pair if all(f is not None for f in pair) else (ref, surface_reported)),
+                clipped)
+        if surface_note is not None:
+            say("  " + surface_note[1])
+            warnings.append(data_checks.DataWarning("clipping_explains", surface_note[1]))
+            away = unexplained if surface_note[0] else None
+        elif share <= CLIP_DOMINATES:
             # the chosen model fitted away from the clipped readings too: fitted to them,
             # its values are biased by what the clipping took, a misfit that follows
             # travel and speed everywhere, not only near the clipped readings
@@ -2232,7 +2251,8 @@ def _clipping_competes(base: _Fit, chosen: _Fit, clipped: dict[str, np.ndarray]
                        "with a larger measuring range")
     t = paired_block_t(eb[~near], ec[~near])
     gain = 1.0 - float(np.mean(ec[~near] ** 2) / np.mean(eb[~near] ** 2))
-    found = (" + ".join(e.replace("_", " ") for e in chosen.effects)
+    found = ("a smooth force surface" if chosen.effects == (SURFACE,) else
+             " + ".join(e.replace("_", " ") for e in chosen.effects)
              or f"the model corrected for the {_DATA_LABEL[chosen.data.kind]}")
     head = (f"{100 * share_e:.0f} % of the linear model's held-out misfit lies within "
             f"{CLIP_REACH_S:g} s of clipped readings ({100 * share_t:.0f} % of the time)")
