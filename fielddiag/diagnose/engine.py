@@ -1914,6 +1914,10 @@ def _diagnose(
             say("  " + surface_note[1])
             warnings.append(data_checks.DataWarning("clipping_explains", surface_note[1]))
             away = unexplained if surface_note[0] else None
+        elif surface_reported is not None:
+            # no held-out reading near a clipped one: the comparison the surface won is
+            # the clipping's in no part
+            pass
         elif share <= CLIP_DOMINATES:
             # the chosen model fitted away from the clipped readings too: fitted to them,
             # its values are biased by what the clipping took, a misfit that follows
