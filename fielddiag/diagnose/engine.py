@@ -1914,14 +1914,12 @@ def _diagnose(
             say("  " + surface_note[1])
             warnings.append(data_checks.DataWarning("clipping_explains", surface_note[1]))
             away = unexplained if surface_note[0] else None
-        elif surface_reported is not None:
-            # no held-out reading near a clipped one: the comparison the surface won is
-            # the clipping's in no part
-            pass
-        elif share <= CLIP_DOMINATES:
+        elif surface_reported is None and share <= CLIP_DOMINATES:
             # the chosen model fitted away from the clipped readings too: fitted to them,
             # its values are biased by what the clipping took, a misfit that follows
-            # travel and speed everywhere, not only near the clipped readings
+            # travel and speed everywhere, not only near the clipped readings (a surface
+            # with no held-out reading near a clipped one keeps its finding: the
+            # comparison it won is the clipping's in no part)
             say("  again, away from the clipped readings, with the model fitted there")
             clean = _fit_away_from_clipping(chosen.physics, chosen, coupling, clipped,
                                             mass_bounds)
@@ -2255,7 +2253,7 @@ def _clipping_competes(base: _Fit, chosen: _Fit, clipped: dict[str, np.ndarray]
                        "with a larger measuring range")
     t = paired_block_t(eb[~near], ec[~near])
     gain = 1.0 - float(np.mean(ec[~near] ** 2) / np.mean(eb[~near] ** 2))
-    found = ("a smooth force surface" if chosen.effects == (SURFACE,) else
+    found = ("a smooth force surface" if chosen.physics == (SURFACE,) else
              " + ".join(e.replace("_", " ") for e in chosen.effects)
              or f"the model corrected for the {_DATA_LABEL[chosen.data.kind]}")
     head = (f"{100 * share_e:.0f} % of the linear model's held-out misfit lies within "
