@@ -258,7 +258,8 @@ def select_model(baseline: CandidateFit, candidates: Sequence[CandidateFit]) -> 
     """Pick the simplest model that predicts held-out data significantly better.
 
     Single effects are compared with the baseline; a pair of effects must also beat the
-    best single effect it contains. What corrects the recording only is judged by its gain
+    best single effect it contains, and a pair without the chosen single must beat that
+    single and each of its own parts. What corrects the recording only is judged by its gain
     in the typical block (:meth:`Comparison.gain`). Candidates with a parameter pinned at
     a bound are unphysical and never chosen.
 
@@ -307,7 +308,25 @@ def select_model(baseline: CandidateFit, candidates: Sequence[CandidateFit]) -> 
         ):
             chosen, chosen_cmp = c, cmp
             break
+        if not set(chosen.effects) <= set(c.effects) and _beats_apart(c, chosen, candidates):
+            chosen, chosen_cmp = c, cmp
+            break
     return Selection(chosen, baseline, chosen_cmp, ranking, unphysical)
+
+
+def _beats_apart(pair: CandidateFit, single: CandidateFit,
+                 candidates: Sequence[CandidateFit]) -> bool:
+    """Whether ``pair``, which does not hold the chosen ``single``, replaces it: each of
+    its effects was fitted alone too, and it beats the single and every candidate made of
+    a part of it, each by the selection's rule for the parameters it adds (a hysteresis
+    beside a late channel against the top mount whose lag takes up both on the drives as
+    recorded). Where a part was never fitted alone, nothing says the pair needs both."""
+    parts = [c for c in candidates if c is not pair and set(c.effects) < set(pair.effects)]
+    if {e for c in parts for e in c.effects} != set(pair.effects):
+        return False
+    return all(compare(ref, pair).beats(pair.n_params - ref.n_params,
+                                        pair.adds_corrections_only(ref))
+               for ref in [single, *parts])
 
 
 def confidence(cmp: Comparison | None, explained_fraction: float) -> float:

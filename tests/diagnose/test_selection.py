@@ -263,3 +263,17 @@ def test_significance_is_respected():
     assert cmp.t == pytest.approx(1.0, rel=1e-9)
     assert cmp.relative_gain > MIN_GAIN_PER_PARAM
     assert select_model(_fit((), base, 3), [cand]).chosen.effects == ()
+
+
+def test_pair_not_containing_the_chosen_single_replaces_it_where_it_beats_it_and_its_parts():
+    # a hysteresis beside a late channel: the top mount's lag takes up both on the drives as
+    # recorded (the best single), the pair of what is there beats it and each of its parts
+    base = _white(15)
+    mount = _fit(("series_top_mount",), _scaled(base, 0.035), 5)
+    lag = _fit(("hysteretic_spring",), _scaled(base, 0.47), 5)
+    offset = _fit(("channel_time_offset",), _scaled(base, 0.039), 4)
+    pair = _fit(("hysteretic_spring", "channel_time_offset"), _scaled(base, 0.022), 6)
+    assert select_model(_fit((), base, 3), [mount, lag, offset, pair]).chosen is pair
+    # no better than its part, the late channel, by the rule's margin: the mount stays
+    close = _fit(("hysteretic_spring", "channel_time_offset"), _scaled(base, 0.0385), 6)
+    assert select_model(_fit((), base, 3), [mount, lag, offset, close]).chosen is mount
