@@ -1779,8 +1779,24 @@ def _diagnose(
                 # physics beside a real late channel (a hysteresis's lag, friction) is
                 # then taken up by the mount's lag on the drives as recorded, and the
                 # delay alone loses to the mount. The physics behind the delay competes,
-                # with the delay refined against it
-                hidden = physics_behind(lin)
+                # with the delay refined against it, where some other effect fitted to the
+                # drives as recorded removed as large a share of the linear model's error
+                # as the mount's lead over the delay is of the delay's (a soft mount's lag,
+                # which no delay matches, is not looked behind)
+                need = 1.0 - physics_fit.candidate.mse_validation / lin.candidate.mse_validation
+                other = max((1.0 - f.candidate.mse_validation / base.candidate.mse_validation
+                             for f in fits if f.data is None and len(f.physics) == 1
+                             and f.candidate.physical
+                             and hyp.kind not in EFFECTS[f.physics[0]].data_twins),
+                            default=0.0)
+                hidden = None
+                if other >= need:
+                    hidden = physics_behind(lin)
+                else:
+                    say(f"  {' + '.join(physics_fit.physics)} leaves {100 * need:.0f} % "
+                        f"less held-out error than the {_DATA_LABEL[hyp.kind]}, no other "
+                        f"effect took that share from the linear model's ({100 * other:.0f}"
+                        " %): no physics looked for behind the delay")
                 if hidden is not None:
                     again = delay_against_physics(hyp, hidden)
                     if again is not None:
