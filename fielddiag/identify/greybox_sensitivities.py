@@ -62,6 +62,17 @@ def _hermite_basis(nsub):  # pragma: no cover - compiled
     return b
 
 
+@njit(cache=True, nogil=True)
+def _hermite_table(max_nsub):  # pragma: no cover - compiled
+    """:func:`_hermite_basis` for every count 1..``max_nsub``: ``(max_nsub + 1,
+    2 max_nsub + 1, 8)``, row ``k`` holding the ``2 k + 1`` weights of ``k`` substeps."""
+    m = 2 * max_nsub + 1
+    out = np.zeros((max_nsub + 1, m, 8))
+    for k in range(1, max_nsub + 1):
+        out[k, :2 * k + 1] = _hermite_basis(k)
+    return out
+
+
 def _stage(x, v, xin, vin, theta, consts, mass, load, dth):  # pragma: no cover - template
     """Body acceleration at one stage and its partial derivatives with respect to the
     body's position and velocity; ``dth`` receives the force's derivatives with respect to
@@ -205,7 +216,8 @@ def _accel_z(x, v, z, xin, vin, theta, consts, mass, load, dth, dz):  # pragma: 
 def _simulate_z(x1, v1, h, nsub, theta, consts, mass, load, x_eq, z_eq, dx0, dv0,
                 reset_every, x2r, v2r, r_static):  # pragma: no cover - numba template
     """RK4 of the body and the effects' internal states, driven by (x1, v1), from the
-    static equilibrium ``x_eq``, ``z_eq`` (found by the caller) plus ``dx0``, ``dv0``.
+    static equilibrium ``x_eq``, ``z_eq`` (found by the caller) plus ``dx0``, ``dv0``;
+    ``nsub[i]`` RK4 steps in the interval after sample ``i``.
 
     With ``reset_every`` > 0 the body (not the states) is reset to the measured motion plus
     ``r_static`` every ``reset_every`` samples. Returns a2 (n,)."""
@@ -221,8 +233,7 @@ def _simulate_z(x1, v1, h, nsub, theta, consts, mass, load, x_eq, z_eq, dx0, dv0
     k4 = np.empty(nz)
     x = x_eq + dx0
     v = dv0
-    bas = _hermite_basis(nsub)
-    hs = h / nsub
+    table = _hermite_table(max(np.max(nsub), 1))
     xin = np.empty(3)
     vin = np.empty(3)
     for i in range(n):
@@ -233,11 +244,13 @@ def _simulate_z(x1, v1, h, nsub, theta, consts, mass, load, x_eq, z_eq, dx0, dv0
         a_out[i] = a1
         if i == n - 1:
             break
+        ns = nsub[i]
+        hs = h / ns
         x0k, x1k = x1[i], x1[i + 1]
         hv0, hv1 = h * v1[i], h * v1[i + 1]
-        for s in range(nsub):
+        for s in range(ns):
             for m in range(3):
-                b = bas[2 * s + m]
+                b = table[ns, 2 * s + m]
                 xin[m] = b[0] * x0k + b[1] * hv0 + b[2] * x1k + b[3] * hv1
                 vin[m] = (b[4] * x0k + b[5] * hv0 + b[6] * x1k + b[7] * hv1) / h
             if s > 0:
@@ -306,8 +319,7 @@ def _simulate_zs(x1, v1, h, nsub, theta, consts, mass, load, x_eq, z_eq, dx0, dv
     dzr = np.empty(nz)
     x = x_eq + dx0
     v = dv0
-    bas = _hermite_basis(nsub)
-    hs = h / nsub
+    table = _hermite_table(max(np.max(nsub), 1))
     xin = np.empty(3)
     vin = np.empty(3)
     for i in range(n):
@@ -317,11 +329,13 @@ def _simulate_zs(x1, v1, h, nsub, theta, consts, mass, load, x_eq, z_eq, dx0, dv
             for j in range(q):
                 s[0, j] = sx_reset[j]
                 s[1, j] = 0.0
+        ns = nsub[i]
+        hs = h / ns
         x0k, x1k = x1[i], x1[min(i + 1, n - 1)]
         hv0, hv1 = h * v1[i], h * v1[min(i + 1, n - 1)]
-        for sub in range(nsub):
+        for sub in range(ns):
             for m in range(3):
-                b = bas[2 * sub + m]
+                b = table[ns, 2 * sub + m]
                 xin[m] = b[0] * x0k + b[1] * hv0 + b[2] * x1k + b[3] * hv1
                 vin[m] = (b[4] * x0k + b[5] * hv0 + b[6] * x1k + b[7] * hv1) / h
             for st in range(4):
