@@ -379,8 +379,8 @@ class GreyBoxProblem:
         follow the measured rate sample by sample, as on a given path, let a simulation
         that lags it go unstable. The window and the margin keep the simulation's own
         peaks, a little late or a little larger, inside the steps; a road's few bumps no
-        longer set the steps of every quiet interval (the rate's peak is 3-8 times its
-        99th percentile on the randomized benchmark's drives)."""
+        longer set the steps of every quiet interval (the rate's peak is 1.4-9 times its
+        99th percentile on six drives of the randomized generator)."""
         env = self._rate_envelopes.get(s)
         if env is None:
             d = self._prep[s].data
