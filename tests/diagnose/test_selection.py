@@ -277,3 +277,16 @@ def test_pair_not_containing_the_chosen_single_replaces_it_where_it_beats_it_and
     # no better than its part, the late channel, by the rule's margin: the mount stays
     close = _fit(("hysteretic_spring", "channel_time_offset"), _scaled(base, 0.0385), 6)
     assert select_model(_fit((), base, 3), [mount, lag, offset, close]).chosen is mount
+
+
+def test_a_delay_is_refined_by_the_secant_where_the_model_absorbs_part_of_it():
+    from fielddiag.diagnose.engine import _delay_step_s
+
+    # seed 1795865160: corrected by 4.22 ms the linear model still sees -1.23 ms, by
+    # 2.99 ms -0.45 ms (true 2.27 ms): the secant lands on 2.28 ms, plain steps on 2.54
+    assert _delay_step_s(4.22e-3, -1.23e-3, None) == pytest.approx(-1.23e-3)
+    step = _delay_step_s(2.99e-3, -0.45e-3, (4.22e-3, -1.23e-3))
+    assert 2.99e-3 + step == pytest.approx(2.28e-3, abs=0.01e-3)
+    # a slope no absorbing model gives (the seen delay growing with the correction): the
+    # plain step
+    assert _delay_step_s(2.0e-3, 0.5e-3, (1.0e-3, 0.1e-3)) == pytest.approx(0.5e-3)
