@@ -44,6 +44,9 @@ DECISIVE_Z = 3.0
 MIN_T_SIGNIFICANT = 1.0
 #: ... and at least this large (below it no recording would be worth correcting).
 MIN_GAIN_CHANGE = 0.003
+#: A gain change's std from the transmissibility's level beyond which that estimate is not
+#: told as evidence (a sensor's gain does not move by half)
+UNINFORMATIVE_GAIN_STD = 0.5
 MIN_TIME_OFFSET_S = 2e-4
 
 
@@ -115,6 +118,11 @@ def combine_gain(dynamic: tuple[float, float] | None, gravity: GravityGain | Non
     if dynamic is None:
         return DataHypothesis(GAIN_CHANGE, g, gs, evidence=evidence)
     d, ds = dynamic
+    if not ds < UNINFORMATIVE_GAIN_STD:
+        # the transmissibility's level fit did not settle (+880 +- 560 %): it agrees with
+        # anything and says nothing
+        return DataHypothesis(GAIN_CHANGE, g, gs, evidence=(
+            f"{evidence}; the transmissibility's level cannot tell (+- {100 * ds:.0f} %)"))
     if abs(d - g) > 3.0 * float(np.hypot(ds, gs)):
         return DataHypothesis(GAIN_CHANGE, g, gs, evidence=(
             f"{evidence}; the transmissibility's level moved {100 * d:+.1f} +- "

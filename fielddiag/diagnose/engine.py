@@ -1668,6 +1668,7 @@ def _diagnose(
         fit = next((f for f in fits if f.data is hyp and f.physics == phys
                     and f.restored == against.restored), None)
         last = None
+        std = hyp.std
         for i in range(4):
             if fit is None or refined is not hyp:
                 on = corrected(refined, against.restored)
@@ -1675,20 +1676,29 @@ def _diagnose(
                 fit = grey(phys, on, _initial_from(fit or against), refined, warm=True)
             if fit is None or not fit.candidate.physical:
                 return None
-            seen = _residual_delay_s(fit, substeps=2, clipped=clipped)
+            seen, seen_std = _residual_delay_s(fit, substeps=2, clipped=clipped,
+                                               with_std=True)
+            if i == 0:
+                # the steps are told against the least-squares std of the delay seen
+                # against the physics where that is finer than the estimate's own (a
+                # transmissibility's phase bent by hysteresis: +-2.7 ms, against the
+                # physics +-0.2 ms): a correction of a few std of it is no longer "the
+                # same" delay
+                std = min(hyp.std, seen_std)
             step = _delay_step_s(refined.value, seen, last)
             last = (refined.value, seen)
-            if abs(step) <= (2.0 if i == 0 else DELAY_REFINED_STD) * hyp.std:
+            if abs(step) <= (2.0 if i == 0 else DELAY_REFINED_STD) * std:
                 # (at once within two std of the linear model's estimate: the same)
                 break
-            refined = replace(refined, value=refined.value + step, refined_with=phys)
+            refined = replace(refined, value=refined.value + step, std=std,
+                              refined_with=phys)
             say(f"  refined against {' + '.join(phys)} to {_data_size(refined)}")
             if refined.z < MIN_Z and abs(refined.value) < abs(refined.value - step):
                 # on its way to none and not told from it already: it cannot compete
                 break
         else:
             return None
-        if abs(refined.value - hyp.value) <= 2.0 * hyp.std:
+        if abs(refined.value - hyp.value) <= 2.0 * std:
             return None
         if refined.z < MIN_Z:
             # the physics takes up the whole delay: no data problem left to compete
@@ -1728,41 +1738,66 @@ def _diagnose(
         say(f"  {' + '.join(best.physics)} on the drives corrected for the {problems}")
         return best
 
+    def refine_delay(hyp: DataHypothesis) -> tuple[DataHypothesis, _Fit | None]:
+        """The channel time offset ``hyp`` refined against the linear model: the
+        transmissibility's phase slope is measured against a linear model that absorbed
+        part of the delay, so the delay is refined on the fit part of the corrected drives
+        (away from clipped readings, where a clipped peak's misfit pulls the linear model
+        and hides the delay). Returns the refined delay, the linear model's fit to the
+        drives corrected for it where that is the whole drives' (else None: not fitted,
+        or the steps did not settle within a quarter std in :data:`DELAY_REFINE_STEPS`)."""
+        last = None
+        for _ in range(DELAY_REFINE_STEPS):
+            on = [_prepare(d, band, rate, holdout_fraction)
+                  for d in correct_drives(drives, hyp)]
+            clean = _clean_fit_parts(on, clipped) if any_clipped else None
+            if clean is None:
+                trial = grey((), on, _initial_from(base), hyp)
+            else:
+                try:
+                    trial = _grey_fit((), on, coupling, _initial_from(base), 2,
+                                      mass_bounds, hyp, fit_parts=clean)
+                except (FieldDiagError, np.linalg.LinAlgError, FloatingPointError):
+                    trial = None
+            if trial is None:
+                break
+            seen = _residual_delay_s(trial, substeps=2, clipped=clipped)
+            step = _delay_step_s(hyp.value, seen, last)
+            last = (hyp.value, seen)
+            if abs(step) <= DELAY_REFINED_STD * hyp.std:
+                # the linear model on the drives corrected for it is fitted already (on
+                # passive sag, as the refinement assumes; on the whole drives)
+                return hyp, None if physics_fit.restored or clean is not None else trial
+            hyp = replace(hyp, value=hyp.value + step)
+            say(f"  refined to {_data_size(hyp)}")
+        return hyp, None
+
+    def look_behind_chain(lin: _Fit | None) -> None:
+        """Where two data problems are corrected together and the physics first chosen
+        holds what looks like one of them (a top mount beside a late channel and a gain
+        change), that physics was fitted to the corrected drives, not the physics the
+        mount stood in for: every effect is looked for behind the two (its fits join the
+        selection)."""
+        if lin is None or physics_fit is base or not any(
+                h.kind in EFFECTS[e].data_twins for h in lin.data.chain
+                for e in physics_fit.physics):
+            return
+        hidden = physics_behind(lin)
+        if hidden is not None and lin.data.kind == "channel_time_offset":
+            # the delay (last corrected) refined against the physics found behind it
+            again = delay_against_physics(lin.data, hidden)
+            if again is not None:
+                say(f"testing a {_DATA_LABEL[lin.data.kind]} ({_data_size(again[0])}) "
+                    f"against {' + '.join(hidden.physics)}")
+                test_data(*again[:1], known=again[1:])
+
     # data problems compete with the physics: each is corrected and the models refitted
     offset_fit = None
     for hyp in hypotheses:
         say(f"testing a {_DATA_LABEL[hyp.kind]} ({_data_size(hyp)}) against the physics")
         converged = None
         if hyp.kind == "channel_time_offset":
-            # the transmissibility's phase slope is measured against a linear model that
-            # absorbed part of the delay: refine it on the fit part of the corrected drives
-            # (away from clipped readings, where a clipped peak's misfit pulls the linear
-            # model and hides the delay)
-            last = None
-            for _ in range(DELAY_REFINE_STEPS):
-                on = [_prepare(d, band, rate, holdout_fraction)
-                      for d in correct_drives(drives, hyp)]
-                clean = _clean_fit_parts(on, clipped) if any_clipped else None
-                if clean is None:
-                    trial = grey((), on, _initial_from(base), hyp)
-                else:
-                    try:
-                        trial = _grey_fit((), on, coupling, _initial_from(base), 2,
-                                          mass_bounds, hyp, fit_parts=clean)
-                    except (FieldDiagError, np.linalg.LinAlgError, FloatingPointError):
-                        trial = None
-                if trial is None:
-                    break
-                seen = _residual_delay_s(trial, substeps=2, clipped=clipped)
-                step = _delay_step_s(hyp.value, seen, last)
-                last = (hyp.value, seen)
-                if abs(step) <= DELAY_REFINED_STD * hyp.std:
-                    # the linear model on the drives corrected for it is fitted already
-                    # (on passive sag, as the refinement assumes; on the whole drives)
-                    converged = None if physics_fit.restored or clean is not None else trial
-                    break
-                hyp = replace(hyp, value=hyp.value + step)
-                say(f"  refined to {_data_size(hyp)}")
+            hyp, converged = refine_delay(hyp)
         lin = test_data(hyp, converged)
         if lin is not None and hyp.kind == "channel_time_offset":
             offset_fit = lin
@@ -1814,7 +1849,28 @@ def _diagnose(
                 g = replace(g, prior=offset_fit.data)
                 say(f"testing a {_DATA_LABEL[g.kind]} ({_data_size(g)}) on top of the "
                     "time offset")
-                test_data(g)
+                look_behind_chain(test_data(g))
+    gain_first = next((f for f in fits if not f.physics and f.data is not None
+                       and f.data.prior is None and f.data.kind == "sensor_gain_changed"
+                       and f.data.z >= DECISIVE_Z), None)
+    if fd is not None and offset_fit is not None and gain_first is not None:
+        # and the other way round: physics beside the two throws the delay's estimate off
+        # (the transmissibility's phase and the linear model bend to it), while the gravity
+        # levels and the transmissibility's level measure the gain whatever the delay:
+        # where the gain is decisive, the delay is estimated again on the drives corrected
+        # for it, and tested on top of it (friction beside a 2.9 ms late channel and a
+        # 2.9 % gain change: 2.88 ms, against the friction found behind the two)
+        fd2 = _frequency_domain(correct_drives(drives, gain_first.data))
+        start = fd2.linear or {_LINEAR_SI[k]: v for k, v in gain_first.candidate.values.items()
+                               if k in _LINEAR_SI}
+        d = next((h for h in fd2.hypotheses(start) if h.kind == "channel_time_offset"),
+                 None) or _time_domain_offset(gain_first, clipped)
+        if d is not None:
+            d = replace(d, prior=gain_first.data)
+            say(f"testing a {_DATA_LABEL[d.kind]} ({_data_size(d)}) on top of the gain "
+                "change")
+            d, converged = refine_delay(d)
+            look_behind_chain(test_data(d, converged))
     # a data problem whose refined estimate is within MIN_Z standard deviations of zero is
     # not told from none: its corrected fits do not compete
     sel = select_model(base.candidate, [f.candidate for f in fits[1:] if _competes(f)])

@@ -132,6 +132,11 @@ def test_combining_agreeing_and_disagreeing_estimates():
     odd = combine_gain((0.08, 0.004), grav)
     assert odd.value == pytest.approx(grav.ratio_change) and odd.std == grav.ratio_std
     assert "do not confirm" in odd.evidence and not odd.confirmed
+    # a level fit that did not settle (seed 1795817438: +880 +- 560 %) agrees with
+    # anything: the gravity levels alone, and the words say it cannot tell
+    lost = combine_gain((8.8, 5.6), grav)
+    assert (lost.value, lost.std) == (grav.ratio_change, grav.ratio_std)
+    assert "cannot tell (+- 560 %)" in lost.evidence and "agrees" not in lost.evidence
     # no gravity: the dynamic estimate alone; neither: nothing
     alone = combine_gain((0.03, 0.005), None)
     assert (alone.value, alone.std, alone.evidence, alone.confirmed) == (0.03, 0.005, "", False)
