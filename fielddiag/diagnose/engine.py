@@ -1858,8 +1858,10 @@ def _diagnose(
         # (the transmissibility's phase and the linear model bend to it), while the gravity
         # levels and the transmissibility's level measure the gain whatever the delay:
         # where the gain is decisive, the delay is estimated again on the drives corrected
-        # for it, and tested on top of it (friction beside a 2.9 ms late channel and a
-        # 2.9 % gain change: 2.88 ms, against the friction found behind the two)
+        # for it, and tested on top of it (seed 1795847530: a hysteretic spring beside a
+        # 2.33 ms late body channel and a 3.6 % wheel gain change, a hysteretic spring and
+        # a top mount with no word of the delay before; now 2.35 ms, refined against the
+        # Bouc-Wen loop found behind the two, and the gain)
         fd2 = _frequency_domain(correct_drives(drives, gain_first.data))
         start = fd2.linear or {_LINEAR_SI[k]: v for k, v in gain_first.candidate.values.items()
                                if k in _LINEAR_SI}
