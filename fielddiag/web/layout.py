@@ -96,7 +96,9 @@ def notify_exception(what: str, exc: BaseException) -> str:
 
 def fmt_duration(seconds: float) -> str:
     s = float(seconds)
-    if round(s, 1) <= 120:  # as shown: 119.998 and 120.002 s both read 120.0 s
+    if round(s) <= 120:
+        # two drives of one nominal length read alike: 119.98 and 120.06 s (a recorder
+        # stops on a frame, not on the second) are 120.0 and 120.1 s, not 2 min 00 s
         return f"{s:.1f} s"
     m, s = divmod(int(round(s)), 60)
     h, m = divmod(m, 60)

@@ -587,3 +587,14 @@ def test_every_located_region_is_outlined_on_the_map() -> None:
         "region": {"displacement": [-1.0, 2.0], "velocity": [0.0, 3.0]}}}]})
     assert rig == [{"displacement": [-1.0, 2.0], "velocity": [0.0, 3.0],
                     "name": "cubic stiffness"}]
+
+
+def test_drives_of_one_nominal_length_read_alike():
+    """The demo's two 120 s drives stop on a frame: 119.98 and 120.06 s once read
+    '120.0 s' and '2 min 00 s' in the sessions table."""
+    from fielddiag.web.layout import fmt_duration
+
+    assert [fmt_duration(s) for s in (119.98, 120.06, 45.25)] == ["120.0 s", "120.1 s",
+                                                                  "45.2 s"]
+    assert [fmt_duration(s) for s in (120.6, 754.0, 3725.0)] == ["2 min 01 s", "12 min 34 s",
+                                                                 "1 h 02 min"]
