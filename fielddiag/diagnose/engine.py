@@ -1751,8 +1751,7 @@ def _diagnose(
         or the steps did not settle within a quarter std in :data:`DELAY_REFINE_STEPS`)."""
         last = None
         for _ in range(DELAY_REFINE_STEPS):
-            on = [_prepare(d, band, rate, holdout_fraction)
-                  for d in correct_drives(drives, hyp)]
+            on = corrected(hyp, False)  # on passive sag, as the refinement assumes
             clean = _clean_fit_parts(on, clipped) if any_clipped else None
             if clean is None:
                 trial = grey((), on, _initial_from(base), hyp)
@@ -1774,6 +1773,15 @@ def _diagnose(
             hyp = replace(hyp, value=hyp.value + step)
             say(f"  refined to {_data_size(hyp)}")
         return hyp, None
+
+    def estimated_again(fit: _Fit, grav: GravityGain | None) -> list[DataHypothesis]:
+        """The data hypotheses the transmissibilities of the drives corrected for
+        ``fit``'s data problem suggest (the gain's linear fit started from the frequency
+        domain's values there, else from ``fit``'s)."""
+        fd2 = _frequency_domain(correct_drives(drives, fit.data))
+        start = fd2.linear or {_LINEAR_SI[k]: v for k, v in fit.candidate.values.items()
+                               if k in _LINEAR_SI}
+        return fd2.hypotheses(start, grav)
 
     def look_behind_chain(lin: _Fit | None) -> None:
         """Where two data problems are corrected together and the physics first chosen
@@ -1844,10 +1852,7 @@ def _diagnose(
     if fd is not None and offset_fit is not None:
         # a gain change hides behind a delay in the transmissibilities: estimated again
         # on the drives corrected for the delay, and tested on top of it
-        fd2 = _frequency_domain(correct_drives(drives, offset_fit.data))
-        start = fd2.linear or {_LINEAR_SI[k]: v for k, v in offset_fit.candidate.values.items()
-                               if k in _LINEAR_SI}
-        for g in fd2.hypotheses(start, gravity):
+        for g in estimated_again(offset_fit, gravity):
             if g.kind == "sensor_gain_changed":
                 g = replace(g, prior=offset_fit.data)
                 say(f"testing a {_DATA_LABEL[g.kind]} ({_data_size(g)}) on top of the "
@@ -1865,11 +1870,9 @@ def _diagnose(
         # 2.33 ms late body channel and a 3.6 % wheel gain change, a hysteretic spring and
         # a top mount with no word of the delay before; now 2.35 ms, refined against the
         # Bouc-Wen loop found behind the two, and the gain)
-        fd2 = _frequency_domain(correct_drives(drives, gain_first.data))
-        start = fd2.linear or {_LINEAR_SI[k]: v for k, v in gain_first.candidate.values.items()
-                               if k in _LINEAR_SI}
-        d = next((h for h in fd2.hypotheses(start) if h.kind == "channel_time_offset"),
-                 None) or _time_domain_offset(gain_first, clipped)
+        d = next((h for h in estimated_again(gain_first, None)
+                  if h.kind == "channel_time_offset"), None) \
+            or _time_domain_offset(gain_first, clipped)
         if d is not None:
             d = replace(d, prior=gain_first.data)
             say(f"testing a {_DATA_LABEL[d.kind]} ({_data_size(d)}) on top of the gain "
