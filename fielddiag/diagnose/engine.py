@@ -38,6 +38,7 @@ from scipy import optimize
 from fielddiag import dsp
 from fielddiag.blas import single_threaded_blas
 from fielddiag.diagnose import data_checks
+from fielddiag.diagnose.clipping import ClippedPeaks
 from fielddiag.diagnose.data_hypotheses import (
     DECISIVE_Z,
     GAIN_CHANGE,
@@ -63,6 +64,7 @@ from fielddiag.diagnose.locate import (
 )
 from fielddiag.diagnose.selection import (
     MIN_GAIN_PER_PARAM,
+    MIN_T,
     CandidateFit,
     Comparison,
     compare,
@@ -1470,6 +1472,10 @@ def _diagnose(
     # the clipped readings (times by drive): a delay is measured away from them
     clipped = _clipped_times(drives)
     any_clipped = any(t.size for t in clipped.values())
+    # ... and the wheel's clipped peaks, whose lost speed reaches far into its motion
+    lost = {d.label: peaks for d in drives if any_clipped and (
+        peaks := ClippedPeaks.of(d.wheel_accel_mps2, d.sample_rate_hz, band, rate,
+                                 d.start_s)) is not None}
     gravity = gain_from_gravity(drives) if mode == "pair" else None
     if fd is not None:
         lin = fd.linear or {_LINEAR_SI[k]: v for k, v in base.candidate.values.items()
@@ -1937,14 +1943,15 @@ def _diagnose(
         # the physics against the clipping: both models fitted again away from the
         # clipped readings, and compared there (where the stretches left are too short,
         # the fits on the whole drives are compared away from them)
-        say("fitting the linear model and the finding away from the clipped readings")
-        away = map_threads(lambda eff: _fit_away_from_clipping(
-            eff, chosen, coupling, clipped, mass_bounds), [(), chosen.physics],
-            cost=_cost)
+        say("fitting the linear model and the finding with what the clipped wheel peaks "
+            "lost fitted alongside" if lost else
+            "fitting the linear model and the finding away from the clipped readings")
+        away = _fits_beside_clipping([(), chosen.physics], chosen, coupling, clipped, lost,
+                                     mass_bounds)
         pair = away if all(f is not None for f in away) else (base, chosen)
-        clip_note = _clipping_competes(*pair, clipped)
+        clip_note = _clipping_competes(*pair, clipped, lost)
     elif chosen is not base and any_clipped:
-        clip_note = _clipping_competes(base, chosen, clipped)
+        clip_note = _clipping_competes(base, chosen, clipped, lost)
     if clip_note is not None:
         say("  " + clip_note[1])
         # clipped peaks can fake physics and a late channel, not a gain change: that is
@@ -1959,7 +1966,8 @@ def _diagnose(
             # (where the clipped peaks dominate the held-out misfit, physics that absorbs
             # them beat every correction there): each decisive one, the linear model
             # fitted to the drives corrected for it, competes with the clipping on its own
-            stands = _data_beside_clipping(base, fits, clipped, coupling, mass_bounds)
+            stands = _data_beside_clipping(base, fits, clipped, lost, coupling,
+                                            mass_bounds)
             if stands is not None:
                 kept, words = stands
                 say("  " + words)
@@ -2017,11 +2025,11 @@ def _diagnose(
             say("fitting the linear model and the force surface away from the clipped "
                 "readings")
             ref = base_for_surface
-            pair = map_threads(lambda eff: _fit_away_from_clipping(
-                eff, ref, coupling, clipped, mass_bounds), [(), (SURFACE,)], cost=_cost)
+            pair = _fits_beside_clipping([(), (SURFACE,)], ref, coupling, clipped, lost,
+                                         mass_bounds)
             surface_note = _clipping_competes(
                 *(pair if all(f is not None for f in pair) else (ref, surface_reported)),
-                clipped)
+                clipped, lost)
         if surface_note is not None:
             say("  " + surface_note[1])
             warnings.append(data_checks.DataWarning("clipping_explains", surface_note[1]))
@@ -2348,42 +2356,125 @@ def _fit_away_from_clipping(effects: tuple[str, ...], fit: _Fit, coupling: bool,
         return None
 
 
-def _clipping_competes(base: _Fit, chosen: _Fit, clipped: dict[str, np.ndarray]
+def _body_per_kg(vals: dict[str, float], added_mass_kg: float) -> tuple[float, float]:
+    """A fit's linear stiffness and damping per kg of the body with ``added_mass_kg``."""
+    mass = vals.get("body_mass_kg")
+    per = 1.0 / (mass + added_mass_kg) if mass else 1.0
+    return (vals.get("linear_spring.suspension_stiffness_n_per_m", np.nan) * per,
+            vals.get("linear_damper.suspension_damping_ns_per_m", np.nan) * per)
+
+
+def _with_lost_peaks(prepared: Sequence[_Prepared], lost: dict[str, ClippedPeaks],
+                     vals: dict[str, float]) -> list[_Prepared]:
+    """The drives with what each clipped wheel peak lost as disturbances of unknown size
+    (``GreyBoxData.disturbance_basis``), their shapes through the linear body of
+    ``vals``."""
+    out = []
+    for p in prepared:
+        peaks = lost.get(p.drive.label)
+        if peaks is None:
+            out.append(p)
+            continue
+        body = _body_per_kg(vals, p.drive.added_mass_kg)
+        parts = {name: replace(d, disturbance_basis=peaks.basis(
+            d.start_s + np.arange(d.n_samples) / d.sample_rate_hz, *body))
+            for name, d in (("fit", p.fit), ("val", p.val))}
+        out.append(replace(p, **parts))
+    return out
+
+
+def _fits_beside_clipping(combos: Sequence[tuple[str, ...]], ref: _Fit, coupling: bool,
+                          clipped: dict[str, np.ndarray], lost: dict[str, ClippedPeaks],
+                          mass_bounds_kg: tuple[float, float] | None) -> list[_Fit | None]:
+    """The linear model plus each of ``combos`` fitted to ``ref``'s drives with the
+    clipping modelled. Where wheel peaks are clipped: what each lost fitted alongside
+    (:func:`_with_lost_peaks`; its shapes through the linear body fitted so, twice, from
+    ``ref``'s), on the stretches away from the clipped readings where they hold enough
+    (:func:`_clean_fit_parts`: a lost peak's response is not all linear), else on the
+    whole drives; without clipped wheel peaks on those stretches alone
+    (:func:`_fit_away_from_clipping`). None where a fit fails."""
+    if not lost:
+        return map_threads(lambda eff: _fit_away_from_clipping(
+            eff, ref, coupling, clipped, mass_bounds_kg), list(combos), cost=_cost)
+    vals = _initial_from(ref)
+    lin = None
+    try:
+        for _ in range(2):
+            on = _with_lost_peaks(ref.prepared, lost, vals)
+            parts = _clean_fit_parts(on, clipped)
+            lin = _grey_fit((), on, coupling, vals, 2, mass_bounds_kg, ref.data,
+                            fit_parts=parts)
+            vals = {**vals, **_initial_from(lin)}
+    except (FieldDiagError, np.linalg.LinAlgError, FloatingPointError):
+        return [None] * len(combos)
+
+    def fit(combo: tuple[str, ...]) -> _Fit | None:
+        if not combo:
+            return lin
+        try:
+            return _grey_fit(combo, on, coupling, _initial_from(ref), 2, mass_bounds_kg,
+                             ref.data, fit_parts=parts)
+        except (FieldDiagError, np.linalg.LinAlgError, FloatingPointError):
+            return None
+    return map_threads(fit, list(combos), cost=_cost)
+
+
+def _clipping_competes(base: _Fit, chosen: _Fit, clipped: dict[str, np.ndarray],
+                       lost: dict[str, ClippedPeaks] | None = None
                        ) -> tuple[bool, str] | None:
     """Clipping as the competing explanation of a physical finding.
 
-    Modelling the clipping means leaving out what it corrupts (the held-out samples near
-    clipped readings). If the finding still predicts the rest significantly better than
-    the linear model, it stands, with the clipping named beside it; if not, the clipping
-    explains the mismatch. Returns (finding stands, words), or None without clipping.
+    Modelling the clipping means leaving out what it corrupts: the held-out samples near
+    clipped readings, and, where ``base`` and ``chosen`` were fitted with them
+    (:func:`_fits_beside_clipping`), what each clipped wheel peak lost (a lost peak's
+    error reaches seconds into the wheel's integrated displacement). If the finding
+    still predicts the rest significantly better than the linear model, it stands, with
+    the clipping named beside it; if not, the clipping explains the mismatch. Returns
+    (finding stands, words), or None without clipping (``lost``: the drives' clipped
+    wheel peaks, which act on held-out data far from them).
     """
-    near = _near_clipping(base.runs, clipped)
-    if near is None or not near.any():
-        return None
     eb, ec = base.candidate.residual_validation, chosen.candidate.residual_validation
-    share_t = float(near.mean())
-    share_e = float(np.sum(eb[near] ** 2) / np.sum(eb**2))
-    if share_t > CLIP_DOMINATES:
-        return False, (f"{100 * share_t:.0f} % of the held-out data lie near clipped "
-                       f"readings: the mismatch ({' + '.join(chosen.effects)}) cannot be told "
-                       "from the clipping, which is the simpler explanation. Record again "
-                       "with a larger measuring range")
-    t = paired_block_t(eb[~near], ec[~near])
-    gain = 1.0 - float(np.mean(ec[~near] ** 2) / np.mean(eb[~near] ** 2))
+    near = _near_clipping(base.runs, clipped)
+    if near is None:
+        if not lost:
+            return None
+        near = np.zeros(eb.size, bool)
     found = ("a smooth force surface" if chosen.physics == (SURFACE,) else
              " + ".join(e.replace("_", " ") for e in chosen.effects)
              or f"the model corrected for the {_DATA_LABEL[chosen.data.kind]}")
+    share_e = float(np.sum(eb[near] ** 2) / np.sum(eb**2))
+    share_n = float(near.mean())
     head = (f"{100 * share_e:.0f} % of the linear model's held-out misfit lies within "
-            f"{CLIP_REACH_S:g} s of clipped readings ({100 * share_t:.0f} % of the time)")
-    if t >= 3.0 and gain > 0:
+            f"{CLIP_REACH_S:g} s of clipped readings ({100 * share_n:.0f} % of the time)"
+            if share_n > 0 else "no held-out reading lies near the clipped ones")
+    if any(p.val.disturbance_basis is not None for p in base.prepared):
+        head += ("; with what each clipped wheel peak lost fitted alongside both models "
+                 "(it reaches seconds into the wheel's integrated motion)")
+    share_t = float(near.mean())
+    if share_t > CLIP_DOMINATES:
+        return False, (f"{head}: the mismatch ({' + '.join(chosen.effects)}) cannot be "
+                       "told from the clipping, which is the simpler explanation. Record "
+                       "again with a larger measuring range")
+    t = paired_block_t(eb[~near], ec[~near])
+    gain = 1.0 - float(np.mean(ec[~near] ** 2) / np.mean(eb[~near] ** 2))
+    # physics must show there what it had to show to be chosen (selection's rule: t and
+    # a gain per parameter it adds; a data problem's correction, decided by its estimate's
+    # size, any gain)
+    extra = chosen.candidate.n_params - base.candidate.n_params
+    least = MIN_GAIN_PER_PARAM * max(1, extra) if chosen.physics else 0.0
+    if t >= MIN_T and gain > least:
         return True, (f"{head}; away from them {found} still predicts {100 * gain:.0f} % "
                       f"better (t = {t:.1f}), so it is not the clipping's")
-    return False, (f"{head}; away from them {found} predicts no better than the linear "
-                   f"model (t = {t:.1f}): the clipping explains the mismatch, not the "
-                   "suspension. Record again with a larger measuring range")
+    short = ("no better than the linear model" if gain <= 0 or t < MIN_T else
+             f"only {100 * gain:.0f} % better than the linear model, under the "
+             f"{100 * least:.0f} % its {extra} parameters must earn")
+    return False, (f"{head}; away from them {found} predicts {short} (t = {t:.1f}): the "
+                   "clipping explains the mismatch, not the suspension. Record again with "
+                   "a larger measuring range")
 
 
 def _data_beside_clipping(base: _Fit, fits: Sequence[_Fit], clipped: dict[str, np.ndarray],
+                          lost: dict[str, ClippedPeaks],
                           coupling: bool, mass_bounds_kg: tuple[float, float] | None
                           ) -> tuple[_Fit, str] | None:
     """Of the linear models fitted to drives corrected for a decisive data problem (every
@@ -2394,13 +2485,13 @@ def _data_beside_clipping(base: _Fit, fits: Sequence[_Fit], clipped: dict[str, n
     cands = [f for f in fits if not f.physics and f.data is not None and _competes(f)]
     if not cands:
         return None
-    away = map_threads(lambda f: _fit_away_from_clipping((), f, coupling, clipped,
-                                                         mass_bounds_kg), [base, *cands])
+    away = map_threads(lambda f: _fits_beside_clipping([()], f, coupling, clipped, lost,
+                                                       mass_bounds_kg)[0], [base, *cands])
     best = None
     for f, a in zip(cands, away[1:], strict=True):
         # both refitted away from the clipping, or (where either cannot be) both as fitted
         ref, a = (away[0], a) if away[0] is not None and a is not None else (base, f)
-        note = _clipping_competes(ref, a, clipped)
+        note = _clipping_competes(ref, a, clipped, lost)
         if note is None or not note[0]:
             continue
         near = _near_clipping(ref.runs, clipped)

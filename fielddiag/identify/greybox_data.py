@@ -45,6 +45,11 @@ class GreyBoxData:
         The added mass's weight is carried by a levelling system (self-levelling
         suspension, or the ride height re-set by the technician): the drive moves about
         the unloaded static deflection instead of sagging by the added mass's weight.
+    disturbance_basis : ndarray or None
+        ``(n_samples, p)``: shapes of known form and unknown size in the body acceleration
+        that no model parameter explains (what each clipped peak of the wheel reading lost,
+        :mod:`fielddiag.diagnose.clipping`). Their sizes are fitted with every model by
+        variable projection: the residual and its Jacobian are taken orthogonal to them.
     """
 
     sample_rate_hz: float
@@ -58,6 +63,7 @@ class GreyBoxData:
     band_hz: tuple[float, float] | None = None
     start_s: float = 0.0
     ride_height_restored: bool = False
+    disturbance_basis: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = np.asarray(self.body_accel_mps2).size
@@ -76,6 +82,12 @@ class GreyBoxData:
             setattr(self, attr, v)
         if not (self.sample_rate_hz > 0 and math.isfinite(self.sample_rate_hz)):
             raise FieldDiagError(f"GreyBoxData: sample_rate_hz={self.sample_rate_hz!r} invalid")
+        if self.disturbance_basis is not None:
+            b = np.asarray(self.disturbance_basis, dtype=float)
+            if b.ndim != 2 or b.shape[0] != n or not np.all(np.isfinite(b)):
+                raise FieldDiagError(f"GreyBoxData {self.name!r}: disturbance_basis must be "
+                                     f"finite, ({n}, p); it is {b.shape}")
+            self.disturbance_basis = b
 
     @property
     def n_samples(self) -> int:
@@ -127,6 +139,7 @@ class GreyBoxData:
                        wheel_vel_mps=cut(self.wheel_vel_mps),
                        body_accel_mps2=cut(self.body_accel_mps2),
                        body_disp_m=cut(self.body_disp_m), body_vel_mps=cut(self.body_vel_mps),
+                       disturbance_basis=cut(self.disturbance_basis),
                        start_s=self.start_s + i0 / fs,
                        name=f"{self.name}[{(self.start_s + i0 / fs):.1f}-"
                             f"{(self.start_s + i1 / fs):.1f} s]")

@@ -71,6 +71,26 @@ class _Prepared:
     sos: np.ndarray | None
     measured: np.ndarray  # filtered measured a2 (trimmed)
     keep: slice
+    #: orthonormal columns spanning the data's disturbance basis (filtered, trimmed):
+    #: the residual is taken orthogonal to them (None: no disturbances)
+    disturbances: np.ndarray | None = None
+
+    def project(self, a: np.ndarray) -> np.ndarray:
+        """``a`` (residual or Jacobian rows) without its part in the disturbances."""
+        q = self.disturbances
+        return a if q is None else a - q @ (q.T @ a)
+
+
+def _orthonormal(basis: np.ndarray | None, sos: np.ndarray | None, keep: slice
+                 ) -> np.ndarray | None:
+    """Orthonormal columns spanning ``basis`` as the residual sees it (band-filtered like
+    the simulated acceleration, trimmed like it); None for no basis or an empty span."""
+    if basis is None or basis.shape[1] == 0:
+        return None
+    b = basis if sos is None else signal.sosfiltfilt(sos, basis, axis=0)
+    u, sv, _ = np.linalg.svd(b[keep], full_matrices=False)
+    rank = int(np.sum(sv > 1e-9 * sv[0])) if sv.size and sv[0] > 0 else 0
+    return np.ascontiguousarray(u[:, :rank]) if rank else None
 
 
 class GreyBoxProblem:
@@ -193,7 +213,8 @@ class GreyBoxProblem:
                                         f"fit in {d.band_hz} Hz; record longer")
         keep = slice(trim, d.n_samples - trim)
         meas = d.body_accel_mps2 if sos is None else signal.sosfiltfilt(sos, d.body_accel_mps2)
-        return _Prepared(d, sos, np.ascontiguousarray(meas[keep]), keep)
+        return _Prepared(d, sos, np.ascontiguousarray(meas[keep]), keep,
+                         _orthonormal(d.disturbance_basis, sos, keep))
 
     @property
     def n_residuals(self) -> int:
@@ -555,9 +576,9 @@ class GreyBoxProblem:
             ``(n_residuals, n_fit)``.
         """
         sims = self.simulate(z, True)
-        r = np.concatenate([a - pr.measured for (a, _), pr in zip(sims, self._prep,
-                                                                    strict=True)])
-        j = np.vstack([jz for _, jz in sims])
+        r = np.concatenate([pr.project(a - pr.measured) for (a, _), pr in zip(
+            sims, self._prep, strict=True)])
+        j = np.vstack([pr.project(jz) for (_, jz), pr in zip(sims, self._prep, strict=True)])
         return r, j
 
     def residual(self, z: np.ndarray) -> np.ndarray:
@@ -574,8 +595,8 @@ class GreyBoxProblem:
             ``(n_residuals,)`` simulated - measured body acceleration [m/s^2].
         """
         sims = self.simulate(z, False)
-        return np.concatenate([a - pr.measured for (a, _), pr in zip(sims, self._prep,
-                                                                      strict=True)])
+        return np.concatenate([pr.project(a - pr.measured) for (a, _), pr in zip(
+            sims, self._prep, strict=True)])
 
     def session_slices(self) -> list[slice]:
         """Where each session's residuals lie in the stacked residual vector.
