@@ -107,7 +107,7 @@ def lost_peak_basis(time_s: np.ndarray, runs_s: np.ndarray, lag_s: np.ndarray,
     (up to ``band_top_hz``) it is described by impulses every half period of the band's
     top across the run, each with its lost speed and its first moment: the response
     ``response`` at ``lag_s`` from the impulse, and its slope. Runs whose response does
-    not reach ``time_s`` (beyond 1 % of its peak) give no column.
+    not reach ``time_s`` (beyond 0.1 % of its peak) give no column.
 
     Returns
     -------
@@ -115,7 +115,7 @@ def lost_peak_basis(time_s: np.ndarray, runs_s: np.ndarray, lag_s: np.ndarray,
         ``(time_s.size, p)``.
     """
     t = np.asarray(time_s, float)
-    big = np.flatnonzero(np.abs(response) >= 0.01 * np.max(np.abs(response)))
+    big = np.flatnonzero(np.abs(response) >= 1e-3 * np.max(np.abs(response)))
     if t.size == 0 or big.size == 0:
         return np.zeros((t.size, 0))
     reach = (lag_s[big[0]], lag_s[big[-1]])
