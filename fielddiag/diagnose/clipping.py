@@ -77,25 +77,30 @@ def clipped_runs_s(values: np.ndarray, sample_rate_hz: float, start_s: float = 0
 
 def lost_peak_response(sample_rate_hz: float, n_samples: int, band_hz: tuple[float, float],
                        output_rate_hz: float, stiffness_per_kg: float,
-                       damping_per_kg: float) -> tuple[np.ndarray, np.ndarray]:
-    """What one lost unit of wheel speed (1 m/s taken by a clipped peak, its area above
-    the rail) does to a linear body's predicted acceleration: the wheel reading's
-    impulse integrated as the drive is (same band, rate and length) and passed through
-    the body.
+                       damping_per_kg: float, channel: str = "wheel"
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """What one lost unit of area above the rail does to the residual of a linear body's
+    predicted acceleration: the reading's impulse integrated as the drive is (same band,
+    rate and length); on the wheel channel (1 m/s of lost speed) passed through the body
+    (the prediction's input), on the body channel (1 m/s of lost area in what the
+    prediction is compared with) as the band leaves it.
 
     Returns
     -------
     lag_s, response : ndarray
-        Time from the peak [s] and the change of the predicted body acceleration
-        [m/s^2 per m/s] (the band filter is zero-phase: it starts before the peak).
+        Time from the peak [s] and the change of the residual [m/s^2 per m/s] (the band
+        filter is zero-phase: it starts before the peak).
     """
     impulse = np.zeros(int(n_samples))
     mid = impulse.size // 2
     impulse[mid] = sample_rate_hz  # 1 m/s of area
-    w, _ = dsp.integrate_pair(impulse, np.zeros_like(impulse), sample_rate_hz, band_hz,
-                              output_rate_hz=output_rate_hz)
-    y = _body_response(w.displacement_m, w.velocity_mps, w.sample_rate_hz,
-                       stiffness_per_kg, damping_per_kg)
+    on_wheel = channel == "wheel"
+    w, b = dsp.integrate_pair(impulse if on_wheel else np.zeros_like(impulse),
+                              np.zeros_like(impulse) if on_wheel else impulse,
+                              sample_rate_hz, band_hz, output_rate_hz=output_rate_hz)
+    y = (_body_response(w.displacement_m, w.velocity_mps, w.sample_rate_hz,
+                        stiffness_per_kg, damping_per_kg) if on_wheel
+         else b.acceleration_mps2)
     return np.arange(y.size) / w.sample_rate_hz - mid / sample_rate_hz, y
 
 
@@ -131,37 +136,45 @@ def lost_peak_basis(time_s: np.ndarray, runs_s: np.ndarray, lag_s: np.ndarray,
 
 @dataclass(frozen=True)
 class ClippedPeaks:
-    """A drive's clipped wheel peaks and how its readings are integrated.
+    """A drive's clipped peaks and how its readings are integrated.
 
-    ``runs_s``: the first and last reading of every run of clipped wheel readings [s];
-    the rest as :func:`lost_peak_response` takes it."""
+    ``wheel_runs_s``, ``body_runs_s``: the first and last reading of every run of clipped
+    readings of each channel [s] (``(0, 2)`` where it is not clipped); the rest as
+    :func:`lost_peak_response` takes it."""
 
-    runs_s: np.ndarray
+    wheel_runs_s: np.ndarray
+    body_runs_s: np.ndarray
     sample_rate_hz: float
     n_samples: int
     band_hz: tuple[float, float]
     output_rate_hz: float
 
     @classmethod
-    def of(cls, wheel_accel_mps2: np.ndarray, sample_rate_hz: float,
-           band_hz: tuple[float, float], output_rate_hz: float, start_s: float = 0.0
-           ) -> ClippedPeaks | None:
-        """The clipped peaks of a wheel channel (None where it is not clipped)."""
-        runs = clipped_runs_s(wheel_accel_mps2, sample_rate_hz, start_s)
-        if runs.size == 0:
+    def of(cls, wheel_accel_mps2: np.ndarray, body_accel_mps2: np.ndarray,
+           sample_rate_hz: float, band_hz: tuple[float, float], output_rate_hz: float,
+           start_s: float = 0.0) -> ClippedPeaks | None:
+        """The clipped peaks of a drive's channels (None where neither is clipped)."""
+        wheel, body = (clipped_runs_s(x, sample_rate_hz, start_s)
+                       for x in (wheel_accel_mps2, body_accel_mps2))
+        if wheel.size == 0 and body.size == 0:
             return None
-        return cls(runs, float(sample_rate_hz), int(np.size(wheel_accel_mps2)),
+        return cls(wheel, body, float(sample_rate_hz), int(np.size(wheel_accel_mps2)),
                    (float(band_hz[0]), float(band_hz[1])), float(output_rate_hz))
 
     def basis(self, time_s: np.ndarray, stiffness_per_kg: float, damping_per_kg: float
               ) -> np.ndarray:
-        """What the peaks lost, as shapes at ``time_s`` through one linear body
-        (per unit mass: ``stiffness_per_kg`` [N/m/kg], ``damping_per_kg`` [N s/m/kg]):
-        :func:`lost_peak_basis`; no column where the body is unknown."""
-        lag, resp = lost_peak_response(self.sample_rate_hz, self.n_samples, self.band_hz,
-                                       self.output_rate_hz, stiffness_per_kg,
-                                       damping_per_kg)
-        if not np.any(resp):
-            return np.zeros((np.size(time_s), 0))
-        return lost_peak_basis(time_s, self.runs_s, lag, resp,
-                               self.band_hz[1] * (1 + _BAND_TAPER))
+        """What the peaks lost, as shapes at ``time_s`` (:func:`lost_peak_basis`): the
+        wheel's through one linear body (per unit mass: ``stiffness_per_kg`` [N/m/kg],
+        ``damping_per_kg`` [N s/m/kg]; none where that body is unknown), the body's as
+        the band leaves them."""
+        cols = [np.zeros((np.size(time_s), 0))]
+        for channel, runs in (("wheel", self.wheel_runs_s), ("body", self.body_runs_s)):
+            if runs.size == 0:
+                continue
+            lag, resp = lost_peak_response(self.sample_rate_hz, self.n_samples,
+                                           self.band_hz, self.output_rate_hz,
+                                           stiffness_per_kg, damping_per_kg, channel)
+            if np.any(resp):
+                cols.append(lost_peak_basis(time_s, runs, lag, resp,
+                                            self.band_hz[1] * (1 + _BAND_TAPER)))
+        return np.hstack(cols)

@@ -1472,10 +1472,10 @@ def _diagnose(
     # the clipped readings (times by drive): a delay is measured away from them
     clipped = _clipped_times(drives)
     any_clipped = any(t.size for t in clipped.values())
-    # ... and the wheel's clipped peaks, whose lost speed reaches far into its motion
+    # ... and their runs, whose lost area reaches far into the integrated motion
     lost = {d.label: peaks for d in drives if any_clipped and (
-        peaks := ClippedPeaks.of(d.wheel_accel_mps2, d.sample_rate_hz, band, rate,
-                                 d.start_s)) is not None}
+        peaks := ClippedPeaks.of(d.wheel_accel_mps2, d.body_accel_mps2, d.sample_rate_hz,
+                                 band, rate, d.start_s)) is not None}
     gravity = gain_from_gravity(drives) if mode == "pair" else None
     if fd is not None:
         lin = fd.linear or {_LINEAR_SI[k]: v for k, v in base.candidate.values.items()
@@ -1947,8 +1947,8 @@ def _diagnose(
         # the physics against the clipping: both models fitted again away from the
         # clipped readings, and compared there (where the stretches left are too short,
         # the fits on the whole drives are compared away from them)
-        say("fitting the linear model and the finding with what the clipped wheel peaks "
-            "lost fitted alongside" if lost else
+        say("fitting the linear model and the finding with what the clipped peaks lost "
+            "fitted alongside" if lost else
             "fitting the linear model and the finding away from the clipped readings")
         away = _fits_beside_clipping([(), chosen.physics], chosen, coupling, clipped, lost,
                                      mass_bounds)
@@ -2370,8 +2370,8 @@ def _body_per_kg(vals: dict[str, float], added_mass_kg: float) -> tuple[float, f
 
 def _with_lost_peaks(prepared: Sequence[_Prepared], lost: dict[str, ClippedPeaks],
                      vals: dict[str, float]) -> list[_Prepared]:
-    """The drives with what each clipped wheel peak lost as disturbances of unknown size
-    (``GreyBoxData.disturbance_basis``), their shapes through the linear body of
+    """The drives with what each clipped peak lost as disturbances of unknown size
+    (``GreyBoxData.disturbance_basis``), a wheel peak's shapes through the linear body of
     ``vals``."""
     out = []
     for p in prepared:
@@ -2391,12 +2391,13 @@ def _fits_beside_clipping(combos: Sequence[tuple[str, ...]], ref: _Fit, coupling
                           clipped: dict[str, np.ndarray], lost: dict[str, ClippedPeaks],
                           mass_bounds_kg: tuple[float, float] | None) -> list[_Fit | None]:
     """The linear model plus each of ``combos`` fitted to ``ref``'s drives with the
-    clipping modelled. Where wheel peaks are clipped: what each lost fitted alongside
-    (:func:`_with_lost_peaks`; its shapes through the linear body fitted so, twice, from
-    ``ref``'s), on the stretches away from the clipped readings where they hold enough
-    (:func:`_clean_fit_parts`: a lost peak's response is not all linear), else on the
-    whole drives; without clipped wheel peaks on those stretches alone
-    (:func:`_fit_away_from_clipping`). None where a fit fails."""
+    clipping modelled: what each clipped peak lost fitted alongside
+    (:func:`_with_lost_peaks`; a wheel peak's shapes through the linear body fitted so,
+    twice, from ``ref``'s), on the stretches away from the clipped readings where they
+    hold enough (:func:`_clean_fit_parts`: a lost peak's response is not all linear),
+    else on the whole drives; where no run of clipped readings is known (``lost``
+    empty), on those stretches alone (:func:`_fit_away_from_clipping`). None where a fit
+    fails."""
     if not lost:
         return map_threads(lambda eff: _fit_away_from_clipping(
             eff, ref, coupling, clipped, mass_bounds_kg), list(combos), cost=_cost)
@@ -2430,12 +2431,12 @@ def _clipping_competes(base: _Fit, chosen: _Fit, clipped: dict[str, np.ndarray],
 
     Modelling the clipping means leaving out what it corrupts: the held-out samples near
     clipped readings, and, where ``base`` and ``chosen`` were fitted with them
-    (:func:`_fits_beside_clipping`), what each clipped wheel peak lost (a lost peak's
+    (:func:`_fits_beside_clipping`), what each clipped peak lost (a lost wheel peak's
     error reaches seconds into the wheel's integrated displacement). If the finding
     still predicts the rest significantly better than the linear model, it stands, with
     the clipping named beside it; if not, the clipping explains the mismatch. Returns
     (finding stands, words), or None without clipping (``lost``: the drives' clipped
-    wheel peaks, which act on held-out data far from them).
+    peaks, which act on held-out data far from them).
     """
     eb, ec = base.candidate.residual_validation, chosen.candidate.residual_validation
     near = _near_clipping(base.runs, clipped)
@@ -2452,8 +2453,9 @@ def _clipping_competes(base: _Fit, chosen: _Fit, clipped: dict[str, np.ndarray],
             f"{CLIP_REACH_S:g} s of clipped readings ({100 * share_n:.0f} % of the time)"
             if share_n > 0 else "no held-out reading lies near the clipped ones")
     if any(p.val.disturbance_basis is not None for p in base.prepared):
-        head += ("; with what each clipped wheel peak lost fitted alongside both models "
-                 "(it reaches seconds into the wheel's integrated motion)")
+        head += "; with what each clipped peak lost fitted alongside both models" + (
+            " (a wheel peak's reaches seconds into the wheel's integrated motion)"
+            if any(v.wheel_runs_s.size for v in (lost or {}).values()) else "")
     share_t = float(near.mean())
     if share_t > CLIP_DOMINATES:
         return False, (f"{head}: the mismatch ({' + '.join(chosen.effects)}) cannot be "

@@ -53,7 +53,7 @@ def test_the_lost_peaks_shapes_span_what_the_clipping_did_to_the_prediction():
                               output_rate_hz=RATE_HZ)
     error = _body_response(w.displacement_m, w.velocity_mps, w.sample_rate_hz,
                            K_PER_KG, C_PER_KG)
-    peaks = ClippedPeaks.of(clipped, FS_HZ, BAND_HZ, RATE_HZ)
+    peaks = ClippedPeaks.of(clipped, np.zeros_like(x), FS_HZ, BAND_HZ, RATE_HZ)
     assert peaks is not None
     t = np.arange(error.size) / w.sample_rate_hz
     for part in (slice(0, error.size // 4), slice(error.size // 2, 3 * error.size // 4)):
@@ -66,7 +66,7 @@ def test_the_lost_peaks_shapes_span_what_the_clipping_did_to_the_prediction():
         noise = np.random.default_rng(1).normal(size=basis.shape[0])
         coef, *_ = np.linalg.lstsq(basis, noise, rcond=None)
         assert np.std(noise - basis @ coef) > 0.6 * np.std(noise)
-    assert ClippedPeaks.of(x, FS_HZ, BAND_HZ, RATE_HZ) is None
+    assert ClippedPeaks.of(x, x, FS_HZ, BAND_HZ, RATE_HZ) is None
 
 
 def test_a_disturbance_basis_is_cut_with_its_data_and_checked():
@@ -81,3 +81,21 @@ def test_a_disturbance_basis_is_cut_with_its_data_and_checked():
     with pytest.raises(FieldDiagError, match="disturbance_basis"):
         GreyBoxData(sample_rate_hz=100.0, wheel_disp_m=x, wheel_vel_mps=x,
                     body_accel_mps2=x, disturbance_basis=basis[:10])
+
+
+def test_a_clipped_body_channel_s_lost_peaks_are_what_the_band_leaves_of_them():
+    # the body channel is what the prediction is compared with: its lost area enters the
+    # residual as the band leaves it, through no body
+    x = _wheel(seed=5)
+    clipped = np.clip(x, -30.0, 30.0)
+    _, b = dsp.integrate_pair(np.zeros_like(x), x - clipped, FS_HZ, BAND_HZ,
+                              output_rate_hz=RATE_HZ)
+    error = b.acceleration_mps2
+    peaks = ClippedPeaks.of(np.zeros_like(x), clipped, FS_HZ, BAND_HZ, RATE_HZ)
+    assert peaks is not None and peaks.wheel_runs_s.size == 0
+    t = np.arange(error.size) / b.sample_rate_hz
+    part = slice(error.size // 3, 2 * error.size // 3)
+    basis = peaks.basis(t[part], K_PER_KG, C_PER_KG)
+    coef, *_ = np.linalg.lstsq(basis, error[part], rcond=None)
+    assert np.std(error[part]) > 0.5
+    assert np.std(error[part] - basis @ coef) < 0.03 * np.std(error[part])
