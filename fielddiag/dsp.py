@@ -100,7 +100,12 @@ def zero_phase_filter(
     return signal.sosfiltfilt(sos, np.asarray(x, dtype=float), axis=-1)
 
 
-def band_window(freq_hz: np.ndarray, band_hz: tuple[float, float], taper: float = 0.3
+#: Width of the band window's raised-cosine tapers (a share of each band edge): the
+#: integrated signals hold frequencies up to the band's top times (1 + this).
+BAND_TAPER = 0.3
+
+
+def band_window(freq_hz: np.ndarray, band_hz: tuple[float, float], taper: float = BAND_TAPER
                 ) -> np.ndarray:
     """Smooth band-pass weights: 1 inside ``band_hz``, raised-cosine tapers outside.
 
@@ -230,7 +235,7 @@ def integrate_acceleration(
     *,
     method: str = "frequency",
     output_rate_hz: float | None = None,
-    taper: float = 0.3,
+    taper: float = BAND_TAPER,
 ) -> IntegratedMotion:
     """Integrate an acceleration to velocity and displacement, valid in ``band_hz``.
 
@@ -289,7 +294,7 @@ def integrate_pair(
     band_hz: tuple[float, float],
     *,
     output_rate_hz: float | None = None,
-    taper: float = 0.3,
+    taper: float = BAND_TAPER,
 ) -> tuple[IntegratedMotion, IntegratedMotion]:
     """Integrate two channels of one recording with the same frequency-domain filter.
 

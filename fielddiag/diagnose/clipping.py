@@ -27,10 +27,6 @@ from scipy import signal
 from .. import dsp
 from .data_checks import clipped_mask
 
-#: The band window's raised-cosine taper (:func:`fielddiag.dsp.integrate_pair`'s default):
-#: the integrated motion holds frequencies up to the band's top times (1 + this).
-_BAND_TAPER = 0.3
-
 
 def at_rails(values: np.ndarray) -> np.ndarray:
     """Every sample at a clipped channel's rails (True where it sits at full scale).
@@ -176,5 +172,5 @@ class ClippedPeaks:
                                            stiffness_per_kg, damping_per_kg, channel)
             if np.any(resp):
                 cols.append(lost_peak_basis(time_s, runs, lag, resp,
-                                            self.band_hz[1] * (1 + _BAND_TAPER)))
+                                            self.band_hz[1] * (1 + dsp.BAND_TAPER)))
         return np.hstack(cols)

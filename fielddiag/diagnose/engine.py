@@ -2017,8 +2017,7 @@ def _diagnose(
                                       known=tried, reason=hopeless.split(" (")[0])
     if unexplained is not None and any(w.kind == "clipping" for w in warnings):
         # clipping competes: is the structure still there away from the clipped readings?
-        near = _near_clipping(chosen.runs, clipped)
-        share = float(near.mean()) if near is not None else 0.0
+        share = float(_near_clipping(chosen.runs, clipped).mean())
         away = unexplained
         surface_note = None
         if surface_reported is not None and share <= CLIP_DOMINATES:
@@ -2295,12 +2294,10 @@ def _clipped_times(drives: Sequence[Drive]) -> dict[str, np.ndarray]:
                               | data_checks.clipped_mask(d.body_accel_mps2)] for d in drives}
 
 
-def _near_clipping(runs: list, clipped: dict[str, np.ndarray]) -> np.ndarray | None:
-    """Per held-out residual sample: near a clipped reading (None: nothing clipped)."""
-    near = [_near(clipped[label], t) for (_sf, _m, _r, t), label in zip(runs, clipped,
-                                                                         strict=True)]
-    out = np.concatenate(near)
-    return out if out.any() else None
+def _near_clipping(runs: list, clipped: dict[str, np.ndarray]) -> np.ndarray:
+    """Per held-out residual sample: near a clipped reading."""
+    return np.concatenate([_near(clipped[label], t) for (_sf, _m, _r, t), label in zip(
+        runs, clipped, strict=True)])
 
 
 def _near(times: np.ndarray, time_s: np.ndarray) -> np.ndarray:
@@ -2440,10 +2437,8 @@ def _clipping_competes(base: _Fit, chosen: _Fit, clipped: dict[str, np.ndarray],
     """
     eb, ec = base.candidate.residual_validation, chosen.candidate.residual_validation
     near = _near_clipping(base.runs, clipped)
-    if near is None:
-        if not lost:
-            return None
-        near = np.zeros(eb.size, bool)
+    if not (near.any() or lost):
+        return None
     found = ("a smooth force surface" if chosen.physics == (SURFACE,) else
              " + ".join(e.replace("_", " ") for e in chosen.effects)
              or f"the model corrected for the {_DATA_LABEL[chosen.data.kind]}")
@@ -2456,8 +2451,7 @@ def _clipping_competes(base: _Fit, chosen: _Fit, clipped: dict[str, np.ndarray],
         head += "; with what each clipped peak lost fitted alongside both models" + (
             " (a wheel peak's reaches seconds into the wheel's integrated motion)"
             if any(v.wheel_runs_s.size for v in (lost or {}).values()) else "")
-    share_t = float(near.mean())
-    if share_t > CLIP_DOMINATES:
+    if share_n > CLIP_DOMINATES:
         return False, (f"{head}: the mismatch ({' + '.join(chosen.effects)}) cannot be "
                        "told from the clipping, which is the simpler explanation. Record "
                        "again with a larger measuring range")

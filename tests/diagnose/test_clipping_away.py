@@ -9,6 +9,7 @@ from fielddiag.diagnose.engine import (
     CLEAN_STRETCH_MIN_S,
     CLIP_REACH_S,
     _clean_stretches,
+    _near_clipping,
 )
 from fielddiag.identify.greybox import GreyBoxData
 
@@ -47,6 +48,17 @@ def test_without_clipping_the_whole_part_is_one_stretch():
     stretches, share = _clean_stretches(_part(), np.empty(0))
     assert len(stretches) == 1 and stretches[0].n_samples == _part().n_samples
     assert share == pytest.approx(56.0 / 60.0, abs=1e-3)
+
+
+def test_held_out_readings_near_clipping_are_a_mask_even_where_none_is_near():
+    # a clipped peak far from the held-out data still acts on it (its lost speed): the
+    # comparison goes on with no reading left out, so the mask is never None
+    t_before, t_after = np.arange(45.0, 60.0, 0.01), np.arange(45.0, 60.0, 0.01)
+    runs = [(None, None, None, t_before), (None, None, None, t_after)]
+    near = _near_clipping(runs, {"before": np.array([10.0]), "after": np.empty(0)})
+    assert near.dtype == bool and near.shape == (2 * t_before.size,) and not near.any()
+    near = _near_clipping(runs, {"before": np.array([50.0]), "after": np.empty(0)})
+    assert near.sum() == np.count_nonzero(np.abs(t_before - 50.0) <= CLIP_REACH_S)
 
 
 def _linear_case_diagnosed(seed: int):
