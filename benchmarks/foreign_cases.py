@@ -71,7 +71,7 @@ RATE_HZ = (200, 1000)
 SNR_DB = (25.0, 45.0)
 ADDED_MASS_FRACTION = (0.05, 0.15)
 SELF_LEVELLING_PROBABILITY = 0.2
-STRENGTH = (0.3, 10.0)  # log-uniform; about 1: an effect near the noise
+STRENGTH = (0.5, 20.0)  # log-uniform; about 1: an effect near the noise
 LEAD_IN_S = 2.0
 MIN_INTERNAL_RATE_HZ = 16000.0
 PINK_SHARE = 0.3  # share of the noise power that is 1/f
@@ -118,8 +118,8 @@ def draw_case(seed: int, *, duration_s: float = 60.0, law: str | None = None) ->
            "suspension_damping_ns_per_m": c, "tyre_stiffness_n_per_m": kt,
            "tyre_damping_ns_per_m": float(rng.uniform(*TYRE_DAMPING_NS_PER_M))}
     others = [n for n in LAWS if n != "linear"]
-    if law is None:
-        law = "linear" if rng.random() < LINEAR_PROBABILITY else str(rng.choice(others))
+    drawn = "linear" if rng.random() < LINEAR_PROBABILITY else str(rng.choice(others))
+    law = drawn if law is None else law  # the rest of the case drawn alike either way
     lo, hi = SPEED_MPS
     v1, v2 = sorted(rng.uniform(lo, hi, 2))
     shape = {"u1": float(rng.random()), "u2": float(rng.random()), "u3": float(rng.random())}
