@@ -45,7 +45,9 @@ G_MPS2 = 9.80665
 #: shape outside the library, described rather than named).
 LAWS: dict[str, tuple[int, frozenset[str]]] = {
     "linear": (0, frozenset()),
-    "lugre_friction": (1, frozenset({"coulomb_friction", "dahl_friction", "bouc_wen"})),
+    # (LuGre's bristle state is Dahl's with a Stribeck peak: the hysteretic spring's)
+    "lugre_friction": (1, frozenset({"coulomb_friction", "dahl_friction", "bouc_wen",
+                                     "hysteretic_spring"})),
     "gas_spring": (2, frozenset({"cubic_stiffness", "bump_stop", "unexplained"})),
     "rubber_bump_stop": (3, frozenset({"bump_stop", "cubic_stiffness"})),
     "smooth_digressive_damper": (4, frozenset({"digressive_damping"})),

@@ -1994,6 +1994,28 @@ def _diagnose(
                 say("  " + words)
         chosen = chosen if clip_note[0] else kept
         warnings.append(data_checks.DataWarning("clipping_explains", clip_note[1]))
+    knee_words = _friction_as_wide_as_the_speeds(chosen)
+    if knee_words is not None:
+        # a friction switch as wide as the speeds the damper works at is a damper's knee:
+        # the same physics with a digressive damper for the friction, where that beats the
+        # linear model by the selection's rule
+        swapped = tuple(KNEE if e == FRICTION else e for e in chosen.physics)
+        knee = next((f for f in fits if set(f.physics) == set(swapped)
+                     and f.data is chosen.data and f.restored == chosen.restored
+                     and f.candidate.physical), None) \
+            or grey(swapped, chosen.prepared, None, chosen.data)
+        if knee is not None and knee.candidate.physical and compare(
+                base.candidate, knee.candidate).beats(
+                knee.candidate.n_params - base.candidate.n_params):
+            if knee not in fits:
+                fits.append(knee)
+            chosen = knee
+            knee_words += f"; the findings are {' + '.join(swapped).replace('_', ' ')}"
+        else:
+            knee_words += ("; a damper knee fitted no better than the linear model, so the "
+                           "finding stays a friction-like force that levels off with speed")
+        say("  " + knee_words)
+        warnings.append(data_checks.DataWarning("friction_read_as_damper_knee", knee_words))
     ride = None
     if mode == "pair" and chosen.physics and _acts_on_position(chosen):
         ride, other = _ride_height(chosen, fits, grey, say)
@@ -2756,6 +2778,34 @@ def _time_domain_offset(base: _Fit, clipped: dict[str, np.ndarray] | None = None
     if abs(tau) >= MIN_TIME_OFFSET_S and abs(tau) >= MIN_Z * std:
         return DataHypothesis("channel_time_offset", tau, std)
     return None
+
+
+FRICTION = "coulomb_friction"
+KNEE = "digressive_damping"
+#: Dry friction switches within a few mm/s (the band-limited speed the fit sees rounds it
+#: to 15-35 mm/s: a fitted switch width of 0.10-0.20 of the rms suspension speed on the
+#: random benchmark's friction cases, session 41). A "friction" whose switch is wider than
+#: this share of the rms speed levels off over the speeds the damper works at: a damper's
+#: knee (the independent simulator's smooth digressive dampers: 0.25-0.89, named friction).
+KNEE_SHARE_OF_SPEED = 0.35
+
+
+def _friction_as_wide_as_the_speeds(fit: _Fit) -> str | None:
+    """Words saying why ``fit``'s dry friction is a damper knee (its switch width is at
+    least :data:`KNEE_SHARE_OF_SPEED` of the rms suspension speed), or None."""
+    if FRICTION not in fit.physics or KNEE in fit.physics:
+        return None
+    width = fit.candidate.values.get(f"{FRICTION}.smoothing_velocity_mps")
+    if width is None:
+        return None
+    speed = float(np.sqrt(np.mean(np.concatenate(
+        [_states(p.fit)[1] for p in fit.prepared]) ** 2)))
+    if not speed > 0 or width < KNEE_SHARE_OF_SPEED * speed:
+        return None
+    return (f"the dry friction fitted switches over {1000 * width:.0f} mm/s, "
+            f"{100 * width / speed:.0f} % of the suspension's rms speed ({speed:.2f} m/s): "
+            "dry friction switches within a few mm/s, so a force that levels off over the "
+            "speeds the damper works at is a damper's knee (blow-off), not friction")
 
 
 def _acts_on_position(fit: _Fit) -> bool:
