@@ -1,0 +1,82 @@
+"""The diagnosis on cases of the independent simulator (benchmarks/foreign_cases.py).
+
+Its force laws are the textbook forms, not the library's kernels, and its sensors add
+1/f noise and gravity and decimate with a linear-phase FIR. Three failures it showed in
+session 41, each a fixed case here (60 s drives):
+
+* a linear car with 1/f noise in its readings was called ``unexplained``: the noisy
+  integrated travel and speed tilt the force left along them (seed 1795907655);
+* a damper whose slope bends smoothly above a knee was named dry friction, whose fitted
+  switch (``Ff tanh(v / v_s)``) is the same curve: the switch 168 mm/s wide, 78 % of the
+  suspension's rms speed, is a knee (seed 1795909231);
+* free play in the damper's mounting was reported as a body channel 3.7 ms late: the
+  lag it makes is larger in the quieter half of the drives (seed 1795907660).
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
+
+import foreign_cases as fc  # noqa: E402
+
+from fielddiag.diagnose.engine import diagnose_drives  # noqa: E402
+
+
+def _diagnose(seed: int, law: str) -> tuple[fc.ForeignCase, dict]:
+    case = fc.draw_case(seed)
+    assert case.law == law
+    return case, diagnose_drives(fc.case_drives(case)).to_dict()
+
+
+def test_the_foreign_simulator_reads_gravity_and_its_twin_shares_the_noise():
+    case = fc.draw_case(1795907655)
+    (w, b), (w2, b2) = fc.simulate_pair(case)
+    # an accelerometer reads acceleration + g; the drives are 60 s at the drawn rate
+    assert b.size == w.size == int(round(case.duration_s * case.rate_hz))
+    assert np.mean(b) == pytest.approx(fc.G_MPS2, abs=0.02)
+    assert np.mean(w) == pytest.approx(fc.G_MPS2, abs=0.05)
+    # the linear twin of a linear case is the case itself, reading for reading
+    (tw, tb), _ = fc.simulate_pair(case, linear_twin=True)
+    np.testing.assert_array_equal(tb, b)
+    # the law is drawn whatever is forced: the rest of the case does not change
+    forced = fc.draw_case(1795907655, law="gas_spring")
+    assert forced.car == case.car and forced.rate_hz == case.rate_hz
+
+
+@pytest.mark.timeout(600)
+def test_a_linear_car_with_1_over_f_noise_is_adequate():
+    case, out = _diagnose(1795907655, "linear")
+    assert fc.PINK_SHARE > 0
+    assert out["verdict"] == "adequate", [f["effect"] for f in out["findings"]]
+    assert out["findings"] == []
+
+
+@pytest.mark.timeout(600)
+def test_a_friction_switch_as_wide_as_the_speeds_is_a_damper_knee():
+    case, out = _diagnose(1795909231, "smooth_digressive_damper")
+    named = [f["effect"] for f in out["findings"]]
+    assert named[0] == "digressive_damping", named
+    (note,) = [w["message"] for w in out["warnings"]
+               if w["kind"] == "friction_read_as_damper_knee"]
+    assert "not friction" in note and "the findings are digressive damping" in note
+    knee = out["findings"][0]["parameters"]
+    # the knee sits within the smooth law's bend: tanh reaches 76 % of its level at the
+    # knee velocity drawn (0.5-1.5 x the rms speed)
+    assert 0.05 < knee["compression_knee_mps"] < 0.4
+    assert knee["compression_drop_ns_per_m"] > 0
+
+
+@pytest.mark.timeout(900)
+def test_free_play_in_the_damper_is_not_a_late_channel():
+    case, out = _diagnose(1795907660, "damper_free_play")
+    kinds = [d["kind"] for d in out.get("data_problems", [])]
+    assert "channel_time_offset" not in kinds, kinds
+    (note,) = [w["message"] for w in out["warnings"] if w["kind"] == "lag_of_the_suspension"]
+    assert "quieter half" in note and "livelier half" in note
+    assert out["verdict"] != "adequate"
