@@ -2000,16 +2000,30 @@ def _diagnose(
         # the same physics with a digressive damper for the friction, where that beats the
         # linear model by the selection's rule
         swapped = tuple(KNEE if e == FRICTION else e for e in chosen.physics)
-        knee = next((f for f in fits if set(f.physics) == set(swapped)
-                     and f.data is chosen.data and f.restored == chosen.restored
-                     and f.candidate.physical), None) \
-            or grey(swapped, chosen.prepared, None, chosen.data)
-        if knee is not None and knee.candidate.physical and compare(
-                base.candidate, knee.candidate).beats(
-                knee.candidate.n_params - base.candidate.n_params):
+        knee = None
+        # the knee in the friction's place; where that is not physical (a partner pinned
+        # at a bound: a bump stop with no gap that stood in for the knee's other side),
+        # the knee alone
+        for combo in [swapped] + ([(KNEE,)] if len(swapped) > 1 else []):
+            start = {k: v for k, v in _knee_start(chosen).items()
+                     if "." not in k or k.split(".")[0] in (*combo, *_LINEAR_EFFECTS)}
+            # fitted from the friction's curve, and against a fit of it made before (from
+            # its signature, which may have settled in a friction-like minimum)
+            tried_knee = [f for f in fits if set(f.physics) == set(combo)
+                          and f.data is chosen.data and f.restored == chosen.restored]
+            tried_knee.append(grey(combo, chosen.prepared, start, chosen.data))
+            physical = [f for f in tried_knee if f is not None and f.candidate.physical]
+            trial = min(physical, key=lambda f: f.candidate.mse_validation, default=None)
+            if trial is not None and compare(
+                    base.candidate, trial.candidate).beats(
+                    trial.candidate.n_params - base.candidate.n_params):
+                knee = trial
+                break
+        if knee is not None:
             if knee not in fits:
                 fits.append(knee)
             chosen = knee
+            swapped = knee.physics
             knee_words += f"; the findings are {' + '.join(swapped).replace('_', ' ')}"
         else:
             knee_words += ("; a damper knee fitted no better than the linear model, so the "
@@ -2782,12 +2796,30 @@ def _time_domain_offset(base: _Fit, clipped: dict[str, np.ndarray] | None = None
 
 FRICTION = "coulomb_friction"
 KNEE = "digressive_damping"
+#: The linear model's own effects (their parameters start every fit).
+_LINEAR_EFFECTS = ("linear_spring", "linear_damper", "coupling_spring")
 #: Dry friction switches within a few mm/s (the band-limited speed the fit sees rounds it
 #: to 15-35 mm/s: a fitted switch width of 0.10-0.20 of the rms suspension speed on the
 #: random benchmark's friction cases, session 41). A "friction" whose switch is wider than
 #: this share of the rms speed levels off over the speeds the damper works at: a damper's
 #: knee (the independent simulator's smooth digressive dampers: 0.25-0.89, named friction).
 KNEE_SHARE_OF_SPEED = 0.35
+
+
+def _knee_start(fit: _Fit) -> dict[str, float]:
+    """Start values of the digressive damper that stands for ``fit``'s wide friction
+    switch ``Ff tanh(v / v_s)``: knees at ``v_s`` both ways, the damping below them the
+    linear damper's plus ``Ff / v_s``, dropping by ``Ff / v_s`` above."""
+    start = _initial_from(fit)
+    width = start.pop(f"{FRICTION}.smoothing_velocity_mps")
+    slope = start.pop(f"{FRICTION}.friction_force_n", 0.0) / width
+    damper = "linear_damper.suspension_damping_ns_per_m"
+    if damper in start:
+        start[damper] += slope
+    for way in ("compression", "rebound"):
+        start[f"{KNEE}.{way}_knee_mps"] = width
+        start[f"{KNEE}.{way}_drop_ns_per_m"] = slope
+    return start
 
 
 def _friction_as_wide_as_the_speeds(fit: _Fit) -> str | None:
