@@ -2026,7 +2026,8 @@ def _diagnose(
             swapped = knee.physics
             knee_words += f"; the findings are {' + '.join(swapped).replace('_', ' ')}"
         else:
-            knee_words += ("; a damper knee fitted no better than the linear model, so the "
+            knee_words += ("; a damper knee could not be fitted within its bounds (knees "
+                           "from 0.05 m/s) or fitted no better than the linear model, so the "
                            "finding stays a friction-like force that levels off with speed")
         say("  " + knee_words)
         warnings.append(data_checks.DataWarning("friction_read_as_damper_knee", knee_words))

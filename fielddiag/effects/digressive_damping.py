@@ -62,11 +62,11 @@ class DigressiveDamping(Effect):
     constants = {"width_mps": 0.01}
     truth_constants = {"width_mps": 0.0}
     params = (
-        ParamSpec("compression_knee_mps", "m/s", 0.03, 2.0, 0.15, False,
+        ParamSpec("compression_knee_mps", "m/s", 0.05, 2.0, 0.15, False,
                   "compression knee velocity", "drive over sharp bumps (fast compression)"),
         ParamSpec("compression_drop_ns_per_m", "N s/m", -INF, INF, 600.0, True,
                   "compression damping drop", "drive over sharp bumps (fast compression)"),
-        ParamSpec("rebound_knee_mps", "m/s", 0.03, 2.0, 0.15, False,
+        ParamSpec("rebound_knee_mps", "m/s", 0.05, 2.0, 0.15, False,
                   "rebound knee velocity", "drive over sharp dips (fast rebound)"),
         ParamSpec("rebound_drop_ns_per_m", "N s/m", -INF, INF, 1200.0, True,
                   "rebound damping drop", "drive over sharp dips (fast rebound)"),
