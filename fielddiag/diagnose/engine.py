@@ -2717,13 +2717,18 @@ def _lag_not_a_late_channel(chosen: _Fit, fits: Sequence[_Fit],
     if (held is not None and held * hyp.value > 0
             and abs(held) >= DELAY_ABOVE_MIDDLE_SHARE * abs(hyp.value)):
         return None
+    return ref, _lag_note(hyp, chosen, (
+        f"above {middle_hz:.1f} Hz, where a late channel shows in full, the recording's "
+        f"channels are {1000 * seen:+.2f} ms apart: a lag that shrinks with frequency belongs "
+        "to the suspension (hysteresis, the pre-yield of friction), not to the channels"))
+
+
+def _lag_note(hyp: DataHypothesis, chosen: _Fit, why: str) -> str:
+    """The words withdrawing the late channel ``hyp`` as the suspension's lag (``why``)."""
     named = " + ".join(e.replace("_", " ") for e in chosen.physics) or "the linear model"
-    return ref, (
-        f"a {_DATA_LABEL[hyp.kind]} ({_data_size(hyp)}) fits the residual's phase, but above "
-        f"{middle_hz:.1f} Hz, where a late channel shows in full, the recording's channels "
-        f"are {1000 * seen:+.2f} ms apart: a lag that shrinks with frequency belongs to the "
-        "suspension (hysteresis, the pre-yield of friction), not to the channels. Not "
-        f"reported as a data problem; the findings are {named} on the drives as recorded")
+    return (f"a {_DATA_LABEL[hyp.kind]} ({_data_size(hyp)}) fits the residual's phase, but "
+            f"{why}. Not reported as a data problem; the findings are {named} on the drives "
+            "as recorded")
 
 
 def _without_delay(chosen: _Fit, hyp: DataHypothesis, fits: Sequence[_Fit]) -> _Fit | None:
@@ -2777,15 +2782,12 @@ def _lag_changes_with_amplitude(chosen: _Fit, fits: Sequence[_Fit],
     if apart < max(AMPLITUDE_LAG_SHARE * abs(hyp.value),
                    2.0 * float(np.hypot(quiet_std, lively_std))):
         return None
-    named = " + ".join(e.replace("_", " ") for e in chosen.physics) or "the linear model"
-    return ref, (
-        f"a {_DATA_LABEL[hyp.kind]} ({_data_size(hyp)}) fits the residual's phase, but the "
-        f"recording's channels are {1000 * held_quiet:+.2f} +- {1000 * quiet_std:.2f} ms apart "
-        f"in its quieter half and {1000 * held_lively:+.2f} +- {1000 * lively_std:.2f} ms in "
-        "its livelier half: a lag that changes with the size of the motion belongs to the "
-        "suspension (free play, friction, hysteresis), not to the channels, which are late "
-        f"by the same at any amplitude. Not reported as a data problem; the findings are "
-        f"{named} on the drives as recorded")
+    return ref, _lag_note(hyp, chosen, (
+        f"the recording's channels are {1000 * held_quiet:+.2f} +- {1000 * quiet_std:.2f} ms "
+        f"apart in its quieter half and {1000 * held_lively:+.2f} +- {1000 * lively_std:.2f} "
+        "ms in its livelier half: a lag that changes with the size of the motion belongs to "
+        "the suspension (free play, friction, hysteresis), not to the channels, which are "
+        "late by the same at any amplitude"))
 
 
 def _time_domain_offset(base: _Fit, clipped: dict[str, np.ndarray] | None = None
