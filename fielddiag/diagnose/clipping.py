@@ -87,6 +87,18 @@ def lost_peak_response(sample_rate_hz: float, n_samples: int, band_hz: tuple[flo
         Time from the peak [s] and the change of the residual [m/s^2 per m/s] (the band
         filter is zero-phase: it starts before the peak).
     """
+    lag, w, b = _integrated_impulse(sample_rate_hz, n_samples, band_hz, output_rate_hz,
+                                    channel)
+    y = (_body_response(w.displacement_m, w.velocity_mps, w.sample_rate_hz,
+                        stiffness_per_kg, damping_per_kg) if channel == "wheel"
+         else b.acceleration_mps2)
+    return lag, y
+
+
+def _integrated_impulse(sample_rate_hz: float, n_samples: int, band_hz: tuple[float, float],
+                        output_rate_hz: float, channel: str):
+    """1 m/s of area lost at mid-record on ``channel``, integrated as the drive is: the
+    time from the peak [s] and the wheel's and body's integrated motion."""
     impulse = np.zeros(int(n_samples))
     mid = impulse.size // 2
     impulse[mid] = sample_rate_hz  # 1 m/s of area
@@ -94,10 +106,31 @@ def lost_peak_response(sample_rate_hz: float, n_samples: int, band_hz: tuple[flo
     w, b = dsp.integrate_pair(impulse if on_wheel else np.zeros_like(impulse),
                               np.zeros_like(impulse) if on_wheel else impulse,
                               sample_rate_hz, band_hz, output_rate_hz=output_rate_hz)
-    y = (_body_response(w.displacement_m, w.velocity_mps, w.sample_rate_hz,
-                        stiffness_per_kg, damping_per_kg) if on_wheel
-         else b.acceleration_mps2)
-    return np.arange(y.size) / w.sample_rate_hz - mid / sample_rate_hz, y
+    return np.arange(w.displacement_m.size) / w.sample_rate_hz - mid / sample_rate_hz, w, b
+
+
+def lost_peak_travel_force(sample_rate_hz: float, n_samples: int,
+                           band_hz: tuple[float, float], output_rate_hz: float,
+                           stiffness: float, damping: float, channel: str = "wheel"
+                           ) -> tuple[np.ndarray, np.ndarray]:
+    """What one lost unit of area above the rail does to the force a linear suspension
+    (``stiffness``, ``damping``, in the departure's units) reads from the measured travel
+    and speed: the impulse integrated as the drive is, through the spring and damper.
+
+    The equation-error departure (force on the measured states) takes a lost wheel peak
+    directly, not through the body: a speed step and a displacement ramp in the travel,
+    which the band turns into tails seconds long (:func:`lost_peak_response` is the
+    same loss seen in the simulated body's acceleration instead).
+
+    Returns
+    -------
+    lag_s, response : ndarray
+        Time from the peak [s] and the change of the force [departure units per m/s].
+    """
+    lag, w, b = _integrated_impulse(sample_rate_hz, n_samples, band_hz, output_rate_hz,
+                                    channel)
+    m = w if channel == "wheel" else b
+    return lag, float(stiffness) * m.displacement_m + float(damping) * m.velocity_mps
 
 
 def lost_peak_basis(time_s: np.ndarray, runs_s: np.ndarray, lag_s: np.ndarray,
@@ -170,6 +203,25 @@ class ClippedPeaks:
             lag, resp = lost_peak_response(self.sample_rate_hz, self.n_samples,
                                            self.band_hz, self.output_rate_hz,
                                            stiffness_per_kg, damping_per_kg, channel)
+            if np.any(resp):
+                cols.append(lost_peak_basis(time_s, runs, lag, resp,
+                                            self.band_hz[1] * (1 + dsp.BAND_TAPER)))
+        return np.hstack(cols)
+
+    def travel_force_basis(self, time_s: np.ndarray, stiffness: float, damping: float
+                           ) -> np.ndarray:
+        """What the peaks of either channel lost, as shapes at ``time_s`` of the force a
+        linear suspension reads from the measured travel and speed
+        (:func:`lost_peak_travel_force`, :func:`lost_peak_basis`)."""
+        cols = [np.zeros((np.size(time_s), 0))]
+        if not (np.isfinite(stiffness) and np.isfinite(damping)):
+            return cols[0]
+        for channel, runs in (("wheel", self.wheel_runs_s), ("body", self.body_runs_s)):
+            if runs.size == 0:
+                continue
+            lag, resp = lost_peak_travel_force(self.sample_rate_hz, self.n_samples,
+                                               self.band_hz, self.output_rate_hz,
+                                               stiffness, damping, channel)
             if np.any(resp):
                 cols.append(lost_peak_basis(time_s, runs, lag, resp,
                                             self.band_hz[1] * (1 + dsp.BAND_TAPER)))

@@ -973,32 +973,65 @@ def _drop(part: GreyBoxData, mask: np.ndarray) -> GreyBoxData:
                    body_disp_m=part.body_disp_m[keep], body_vel_mps=part.body_vel_mps[keep])
 
 
+#: What the clipped peaks lost is taken out of a part's departure only where it has at
+#: least this many samples per shape fitted (else the shapes could fit anything).
+LOST_PEAK_SAMPLES_PER_SHAPE = 20
+
+
+def _lost_peak_force(peaks: ClippedPeaks, time_s: np.ndarray, departure: np.ndarray,
+                     vals: dict[str, float]) -> np.ndarray:
+    """The part of ``departure`` (at ``time_s``) that what the clipped peaks lost
+    explains, by least squares on their shapes through the linear spring and damper of
+    ``vals`` (zeros where there are no shapes or too few samples for them)."""
+    basis = peaks.travel_force_basis(
+        time_s, vals.get("linear_spring.suspension_stiffness_n_per_m", np.nan),
+        vals.get("linear_damper.suspension_damping_ns_per_m", np.nan))
+    basis = basis[:, np.any(basis != 0.0, axis=0)]
+    if basis.shape[1] == 0 or time_s.size < LOST_PEAK_SAMPLES_PER_SHAPE * basis.shape[1]:
+        return np.zeros_like(departure)
+    design = np.column_stack([basis, np.ones(time_s.size)])
+    scale = np.linalg.norm(design, axis=0)
+    coef = np.linalg.lstsq(design / scale, departure, rcond=None)[0] / scale
+    return basis @ coef[:-1]
+
+
 def _departure(
     fit: _Fit, prepared: Sequence[_Prepared], coupling: bool,
     exclude: Callable[[Drive, np.ndarray], np.ndarray] | None = None,
+    lost: dict[str, ClippedPeaks] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Equation-error departure of the fitted model on the measured states, all data
     (held-out samples where ``exclude(drive, time_s)`` is True left out): travel, speed,
-    departure, held-out flag and a segment number per sample (drive and part)."""
+    departure, held-out flag and a segment number per sample (drive and part).
+
+    With ``lost`` (the drives' clipped peaks) what each lost peak does to the force read
+    from the measured travel and speed is fitted in every part and taken out
+    (:meth:`ClippedPeaks.travel_force_basis`): a lost wheel peak is a ramp in the
+    integrated travel for seconds, a force k dr the map would read as structure."""
     model = fit.candidate.extra["model"]
     vals = fit.candidate.values
     th = np.array([vals.get(k, 0.0) for k in model.param_keys])
     mass = vals.get("body_mass_kg", 1.0)
     rs, vs, ds, is_val, segs = [], [], [], [], []
     for p in prepared:
+        peaks = (lost or {}).get(p.drive.label)
         for part, flag in ((p.fit, False), (p.val, True)):
+            t = part.start_s + np.arange(part.n_samples) / part.sample_rate_hz
             if exclude is not None and flag:  # held-out samples a data problem corrupts
-                t = part.start_s + np.arange(part.n_samples) / part.sample_rate_hz
-                part = _drop(part, exclude(p.drive, t))
+                drop = exclude(p.drive, t)
+                part, t = _drop(part, drop), t[~drop]
             r, rdot, x2, a2 = _states(part)
             g = GRAVITY if "body_mass_kg" in vals else 0.0
             load = 0.0 if part.ride_height_restored else part.added_mass_kg * g
             r = r + _model_static_offset(model, th, load)
             f = model.force_along_path(r, rdot, x2, th, part.sample_rate_hz,
                                        state_jacobian=False)[0]
+            dep = (mass + part.added_mass_kg) * a2 + part.added_mass_kg * GRAVITY - f
+            if peaks is not None:
+                dep = dep - _lost_peak_force(peaks, t, dep, vals)
             rs.append(r)
             vs.append(rdot)
-            ds.append((mass + part.added_mass_kg) * a2 + part.added_mass_kg * GRAVITY - f)
+            ds.append(dep)
             is_val.append(np.full(r.size, flag))
             segs.append(np.full(r.size, len(segs)))
     return (np.concatenate(rs), np.concatenate(vs), np.concatenate(ds),
@@ -1057,15 +1090,16 @@ def _unexplained(
     fit: _Fit, prepared: Sequence[_Prepared], coupling: bool, baseline: _Fit | None = None,
     say: Callable[[str], None] = lambda _m: None, known: Sequence[str] = EFFECT_LIBRARY,
     exclude: Callable[[Drive, np.ndarray], np.ndarray] | None = None,
-    reason: str | None = None,
+    reason: str | None = None, lost: dict[str, ClippedPeaks] | None = None,
 ) -> tuple[dict | None, DepartureMap]:
     """Force left that depends on (r, rdot) but that the chosen model does not describe
     (judged on held-out samples outside ``exclude``: what a data problem corrupts).
 
     With ``reason`` (other evidence that the model misses physics: the linear model
     cannot describe the pair with one sprung mass) the finding is made whatever the
-    held-out structure, its shape modelled all the same."""
-    r, v, dep, is_val, segments = _departure(fit, prepared, coupling, exclude)
+    held-out structure, its shape modelled all the same. ``lost``: the drives' clipped
+    peaks, whose loss is taken out of the departure (:func:`_departure`)."""
+    r, v, dep, is_val, segments = _departure(fit, prepared, coupling, exclude, lost)
     full_map = departure_map(r, v, dep, bins=12)
     # the decision: does the departure map of the fit part predict the held-out residual?
     # (coarse bins, each with >= 30 samples: structure a short or noisy drive cannot fake)
@@ -2097,22 +2131,28 @@ def _diagnose(
             # travel and speed everywhere, not only near the clipped readings (a surface
             # with no held-out reading near a clipped one keeps its finding: the
             # comparison it won is the clipping's in no part)
-            say("  again, away from the clipped readings, with the model fitted there")
+            say("  again, away from the clipped readings, with the model fitted there and what "
+                "the clipped peaks lost taken out")
             clean = _fit_away_from_clipping(chosen.physics, chosen, coupling, clipped,
                                             mass_bounds)
             away, _ = _unexplained(clean or chosen, chosen.prepared, coupling, base, say,
                                    known=tried,
-                                   exclude=lambda d, t: _near(clipped[d.label], t))
+                                   exclude=lambda d, t: _near(clipped[d.label], t),
+                                   lost=lost)
         if away is None or share > CLIP_DOMINATES:
             unexplained = surface_reported = None
-            where = ("cannot be told from the clipping, the simpler explanation"
-                     if share > CLIP_DOMINATES else "is not found away from them")
+            where = ("sits near the clipped readings ({:.0f} % of the held-out data are "
+                     "near them) and cannot be told from the clipping, the simpler "
+                     "explanation" if share > CLIP_DOMINATES else
+                     "is not found away from the clipped readings ({:.0f} % of the "
+                     "held-out data are near them) with what each clipped peak lost taken "
+                     "out (a lost wheel peak ramps the integrated travel for seconds)"
+                     ).format(100 * share)
             said = any(w.kind == "clipping_explains" for w in warnings)
             warnings += [] if said else [data_checks.DataWarning(
-                "clipping_explains", "the structure left in the residual sits near the "
-                f"clipped readings ({100 * share:.0f} % of the held-out data are near them) "
-                f"and {where}: the clipping explains the mismatch. Record again with a "
-                "larger measuring range")]
+                "clipping_explains", f"the structure left in the residual {where}: the "
+                "clipping explains the mismatch. Record again with a larger measuring "
+                "range")]
             if share > CLIP_DOMINATES:
                 hopeless = hopeless or (
                     "the values of the linear model are not reliable: the clipped readings "
