@@ -115,7 +115,7 @@ def family_table(rows: list[dict]) -> None:
     for fam, rs in sorted(fams.items()):
         sc = rs[0]["sc"]
         if fam == "linear":
-            ok, what = sum(r["out"]["verdict"] == "adequate" for r in rs), "adequate (no alarm)"
+            ok, what = sum(r["out"]["verdict"] != "missing_physics" for r in rs), "no alarm"
         elif fam.startswith("nuisance"):
             ok = sum(set(r["sc"].expected_warnings) <= set(r["warnings"]) for r in rs)
             what = "flagged as a data problem"
@@ -162,7 +162,7 @@ def main() -> None:
         and not r["sc"].expected_warnings
         or r["name"] == "linear_bias_drift"
     ]
-    false_alarms = sum(r["out"]["verdict"] != "adequate" for r in linear)
+    false_alarms = sum(r["out"]["verdict"] == "missing_physics" for r in linear)
     errs = [e for r in effect_cases for e in r["errors"]]
     outside = [r for r in rows if r["sc"].expected_effects == ("unexplained",)]
     sensors = [r for r in rows if r["sc"].expected_warnings]

@@ -500,6 +500,9 @@ class Diagnosis:
     undecided: frozenset[str] = frozenset()
     # the force surface, where it predicts better than the named effects and is reported
     surface: _Fit | None = None
+    # words when the recording cannot show whether physics is missing (clipped readings
+    # near most of the held-out data): the verdict is then ``inconclusive``, not adequate
+    inconclusive: str | None = None
 
     @property
     def described(self) -> _Fit:
@@ -512,9 +515,12 @@ class Diagnosis:
     @property
     def verdict(self) -> str:
         """``missing_physics`` when a physical effect is chosen or structure is left;
-        a data problem alone leaves the suspension ``adequate``."""
-        missing = bool(self.chosen.physics) or self.unexplained is not None
-        return "missing_physics" if missing else "adequate"
+        ``inconclusive`` when nothing is and the recording cannot show it (the clipped
+        readings corrupt most of it); a data problem alone leaves the suspension
+        ``adequate``."""
+        if bool(self.chosen.physics) or self.unexplained is not None:
+            return "missing_physics"
+        return "inconclusive" if self.inconclusive else "adequate"
 
     def data_problems(self) -> list[data_checks.DataWarning]:
         """The data hypotheses the held-out comparison chose, as warnings with sizes.
@@ -670,6 +676,7 @@ class Diagnosis:
         return {
             "mode": self.mode,
             "verdict": self.verdict,
+            "inconclusive": self.inconclusive if self.verdict == "inconclusive" else None,
             "baseline": {"nrmse": base.nrmse_fit, "nrmse_validation": base.nrmse_validation},
             "augmented": {"nrmse": aug.nrmse_fit, "nrmse_validation": aug.nrmse_validation},
             "findings": findings,
@@ -2157,6 +2164,14 @@ def _diagnose(
                 hopeless = hopeless or (
                     "the values of the linear model are not reliable: the clipped readings "
                     "corrupt most of the recording")
+    # a car judged on a recording the clipping corrupts is not judged adequate
+    inconclusive = None
+    if any_clipped and float(_near_clipping(base.runs, clipped).mean()) > CLIP_DOMINATES:
+        inconclusive = (
+            f"{100 * float(_near_clipping(base.runs, clipped).mean()):.0f} % of the held-out "
+            f"data lie within {CLIP_REACH_S:g} s of clipped readings: no physics can be told "
+            "apart from the clipping there, so the recording cannot show whether the linear "
+            "model is adequate. Record again with a larger measuring range")
     # where the restoring force departs from the *linear* surface (what the findings fix)
     r, v, dep, _, _ = _departure(base, prepared, coupling)
     dmap = departure_map(r, v, dep, bins=12)
@@ -2185,6 +2200,7 @@ def _diagnose(
         linear_inadequate=hopeless,
         undecided=undecided,
         surface=surface_reported,
+        inconclusive=inconclusive,
     )
 
 

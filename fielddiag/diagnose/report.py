@@ -94,13 +94,18 @@ def format_summary(out: dict) -> str:
     head = "rig test" if mode == "rig" else "suspension"
     if out["verdict"] == "adequate":
         lines.append(f"{head}: the linear model is adequate (no missing physics found)")
+    elif out["verdict"] == "inconclusive":
+        lines.append(f"{head}: INCONCLUSIVE (no missing physics found, and the recording "
+                     "cannot show whether the linear model is adequate)")
+        if out.get("inconclusive"):
+            lines.append(f"  {out['inconclusive']}")
     else:
         lines.append(f"{head}: MISSING PHYSICS")
     b, a = out["baseline"], out["augmented"]
     lines.append(
         f"  linear model   NRMSE fit {b['nrmse']:.3f}, held-out {b['nrmse_validation']:.3f}"
     )
-    if out["verdict"] != "adequate":
+    if out["verdict"] == "missing_physics":
         lines.append(
             f"  with findings  NRMSE fit {a['nrmse']:.3f}, held-out {a['nrmse_validation']:.3f}"
         )
@@ -127,7 +132,7 @@ def format_summary(out: dict) -> str:
     aug_std, lin_std = out.get("augmented_model_std") or {}, out.get("linear_model_std") or {}
     fixed = data_problem_names(out)
     if mode != "rig":
-        if out["verdict"] != "adequate" and aug and out["findings"]:
+        if out["verdict"] == "missing_physics" and aug and out["findings"]:
             lines.append("  suspension, fitted with the findings"
                          + (f" and the {' and the '.join(fixed)} corrected" if fixed else "")
                          + ": " + _fmt_model(aug, aug_std))

@@ -532,7 +532,7 @@ def _linear_parameters_table(result: Mapping[str, Any]) -> None:
     if not (isinstance(alone, Mapping) and isinstance(refit, Mapping)) or not refit:
         return
     fixed = data_problem_names(result)
-    findings = bool(result.get("findings")) and result.get("verdict") != "adequate"
+    findings = bool(result.get("findings")) and result.get("verdict") == "missing_physics"
     if not (findings or fixed):
         return
     alone_std = result.get("linear_model_std") or {}
@@ -573,7 +573,13 @@ def render_diagnosis(result: Mapping[str, Any], recording_view=None) -> None:
         render_vehicle_diagnosis(result)
         return
     verdict = result.get("verdict")
-    if verdict:
+    if verdict == "inconclusive":
+        ui.label("Inconclusive: the recording cannot show whether physics is missing").classes(
+            "text-lg font-semibold text-warning").mark("diagnosis-verdict")
+        if result.get("inconclusive"):
+            ui.label(str(result["inconclusive"])).classes("text-sm").mark(
+                "diagnosis-inconclusive")
+    elif verdict:
         missing = verdict != "adequate"
         ui.label("Missing physics found" if missing else
                  "The linear model is adequate: no missing physics found").classes(
@@ -594,7 +600,9 @@ def render_diagnosis(result: Mapping[str, Any], recording_view=None) -> None:
             else:
                 ui.label(str(f))
     else:
-        ui.label("No finding: the linear model explains the recording.").classes("text-gray-600")
+        ui.label("No finding: the clipped readings hide what the suspension does." if
+                 verdict == "inconclusive" else
+                 "No finding: the linear model explains the recording.").classes("text-gray-600")
 
     rows = []
     for key, label in (("baseline", "linear model"), ("augmented", "with the findings")):
@@ -670,7 +678,7 @@ def render_diagnosis(result: Mapping[str, Any], recording_view=None) -> None:
                  "(this result holds no spectrum to draw)").classes("text-sm")
     # the map and its outline only where a finding locates something: on a car judged
     # adequate an outlined region reads as a fault
-    located = bool(verdict and verdict != "adequate" and isinstance(findings, list) and findings)
+    located = bool(verdict == "missing_physics" and isinstance(findings, list) and findings)
     dmap = find(result, "departure_map", "departure") if located else None
     regions = mismatch_regions(result) if located else []
     if isinstance(dmap, Mapping) and _arr(dmap.get("r_edges_m")) is not None:
