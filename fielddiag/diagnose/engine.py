@@ -2342,20 +2342,27 @@ def _physics_twin(chosen: _Fit, fits: Sequence[_Fit]) -> tuple[_Fit, str, str] |
     selection chose, unless it chose the data problem over physics that predicts better)
     words saying both explain the recording, and the data problem's kind. None when one is
     clearly better or nothing looks like the chosen model."""
+    def kinds(f: _Fit) -> set[str]:
+        return {h.kind for h in f.data.chain} if f.data is not None else set()
+
     def looks_like(f: _Fit, g: _Fit) -> bool:
-        """``f`` adds to ``g``'s physics an effect that looks like ``g``'s data problem."""
-        return (g.data is not None and g.data.prior is None and f.data is None
-                and f.candidate.physical and set(g.physics) < set(f.physics)
-                and any(g.data.kind in EFFECTS[e].data_twins
+        """``f`` adds to ``g``'s physics an effect that looks like the one data problem
+        ``g`` corrects beyond what ``f`` corrects (both corrected alike for the rest: a
+        top mount beside a gain change, the twin of a late channel beside the same
+        gain change)."""
+        extra = kinds(g) - kinds(f)
+        return (len(extra) == 1 and kinds(f) <= kinds(g) and f.candidate.physical
+                and set(g.physics) < set(f.physics)
+                and any(k in EFFECTS[e].data_twins for k in extra
                         for e in set(f.physics) - set(g.physics)))
 
-    if chosen.data is not None:
-        pairs = [(f, chosen) for f in fits if looks_like(f, chosen)]
-    else:
-        pairs = [(chosen, g) for g in fits if looks_like(chosen, g)]
+    pairs = ([(f, chosen) for f in fits if looks_like(f, chosen)]
+             + [(chosen, g) for g in fits if looks_like(chosen, g)])
     if not pairs:
         return None
     twin, data = min(pairs, key=lambda p: p[1 - (chosen is p[1])].candidate.mse_validation)
+    # the data problem the two tell apart (the other corrections they share)
+    told = next(h for h in data.data.chain if h.kind not in kinds(twin))
     cmp = compare(twin.candidate, data.candidate)
     t = cmp.t  # > 0: the data problem predicts better
     better = cmp if t >= 0 else compare(data.candidate, twin.candidate)
@@ -2363,18 +2370,18 @@ def _physics_twin(chosen: _Fit, fits: Sequence[_Fit]) -> tuple[_Fit, str, str] |
         return None
     pick = chosen if (chosen is data) == (t >= 0) else (data if chosen is twin else twin)
     names = " + ".join(e.replace("_", " ") for e in set(twin.physics) - set(data.physics))
-    problem = f"a {_DATA_LABEL[data.data.kind]} ({_data_size(data.data)})"
-    told = (f"{problem} and a {names} explain the held-out data within two standard errors "
+    problem = f"a {_DATA_LABEL[told.kind]} ({_data_size(told)})"
+    both = (f"{problem} and a {names} explain the held-out data within two standard errors "
             f"(t = {abs(t):.1f} for the {'data problem' if t >= 0 else names}): these data "
             "cannot tell the two apart. ")
     if pick is data:
-        note = told + (f"The findings assume the {problem[2:]}; a {names} would explain it "
+        note = both + (f"The findings assume the {problem[2:]}; a {names} would explain it "
                        "as well")
     else:
-        note = told + (f"The findings assume the {names}; check the recording (both "
+        note = both + (f"The findings assume the {names}; check the recording (both "
                        "channels on one DAQ clock with the same filter) to rule the data "
                        "problem out")
-    return pick, note, data.data.kind
+    return pick, note, told.kind
 
 
 def _data_size(hyp: DataHypothesis) -> str:
