@@ -1562,13 +1562,18 @@ def _diagnose(
                    lin: _Fit = base) -> list[_Fit]:
         """``combo`` fitted to the drives ``on`` (corrected for ``lin``'s data problem, if
         any) and, where it acts on position and predicts better than ``lin``, to them with
-        the ride height restored too."""
+        the ride height restored too: also where the passive fit is unphysical, which is
+        what a wrong ride height does to an effect that acts on position (seed
+        1795919950: a self-levelled bump stop fitted under passive sag predicted 5x
+        better than the linear model with its mass pinned at 20 t, and a cubic spring was
+        named)."""
         f = grey(combo, on, None, lin.data)
         if f is None:
             return []
-        if (mode == "pair" and f.candidate.physical and _acts_on_position(f)
+        if (mode == "pair" and _acts_on_position(f)
                 and compare(lin.candidate, f.candidate).t > 0.0):
-            fr = grey(combo, _with_ride_height(on, True), _initial_from(f), lin.data)
+            fr = grey(combo, _with_ride_height(on, True),
+                      _initial_from(f) if f.candidate.physical else None, lin.data)
             if fr is not None:
                 return [f, fr]
         return [f]
