@@ -1045,6 +1045,9 @@ def _departure(
             np.concatenate(is_val), np.concatenate(segs))
 
 
+#: An unphysical single effect (a parameter pinned at a bound) joins the pairs where it
+#: predicts held-out data better than the linear model by this paired-block t.
+MIN_T_PINNED_PARTNER = 2.0
 #: An effect with internal states gets the full (grey-box) fit only where its equation-
 #: error signature beats the linear model on held-out data by this paired-block t (and a
 #: pair with one only where its signature beats its better single's by it).
@@ -1596,6 +1599,15 @@ def _diagnose(
         ),
         key=lambda f: f.candidate.mse_validation,
     )[:3]
+    # ... and the best unphysical single that predicts clearly better than the linear
+    # model: a parameter pinned at a bound is often a second effect the single cannot take
+    # up alone (seed 1795919995: asymmetric damping beside quadratic damping, its
+    # compression damping pinned; the pair was never fitted and a digressive damper with
+    # negative drops named)
+    pinned = sorted((f for f in best.values() if not f.candidate.physical
+                     and compare(base.candidate, f.candidate).t >= MIN_T_PINNED_PARTNER),
+                    key=lambda f: f.candidate.mse_validation)[:1]
+    useful += pinned
     pairs = [
         (tuple(sorted(a.effects + b.effects, key=list(effects).index)), a.restored or b.restored)
         for a, b in itertools.combinations(useful, 2)

@@ -1,4 +1,8 @@
-"""A wrong ride height makes an effect on position unphysical: the other one is tried."""
+"""An unphysical single fit (a parameter pinned at a bound) that predicts well is a lead.
+
+A wrong ride height makes an effect on position unphysical: the other one is tried. A
+second effect the single cannot take up alone pins one of its parameters: it joins the
+pairs."""
 
 from __future__ import annotations
 
@@ -31,3 +35,20 @@ def test_a_self_levelled_bump_stop_unphysical_under_passive_sag_is_found():
     assert found["stiffness_n_per_m"] == pytest.approx(truth["stiffness_n_per_m"], rel=0.15)
     assert out["ride_height"]["assumed"] == "restored"
     assert out["ride_height"]["t_restored_vs_sag"] >= 3.0
+
+
+@pytest.mark.timeout(900)
+def test_a_pinned_single_joins_the_pairs():
+    # the randomized generator's seed 1795919995 (60 s drives): asymmetric damping beside
+    # quadratic damping (5.9x the noise floor). Asymmetric damping alone pinned its
+    # compression damping, so the pair was never fitted and a digressive damper with
+    # negative drops (a progressive one) was named
+    case = rc.draw_case(1795919995, duration_s=60.0)
+    assert case.family == "asymmetric_damping + quadratic_damping"
+    out = diagnose_drives(rc.case_drives(case)).to_dict()
+    found = {f["effect"]: f["parameters"] for f in out["findings"]}
+    assert set(found) == {"asymmetric_damping", "quadratic_damping"}, out["findings"]
+    truth = dict(case.effects)
+    for effect, params in truth.items():
+        for name, value in params.items():
+            assert found[effect][name] == pytest.approx(value, rel=0.15), (effect, name)
