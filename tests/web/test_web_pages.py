@@ -429,6 +429,35 @@ async def test_an_adequate_car_gets_no_departure_map_or_outline(dashboard_user,
         assert _count("region-chart") == 0 and _count("region-text") == 0
 
 
+async def test_an_inconclusive_recording_says_why_and_draws_no_map(dashboard_user,
+                                                                   sessions_root: Path
+                                                                   ) -> None:
+    """Clipped readings near most of the held-out data: not 'adequate', and no region of a
+    fault outlined."""
+    user = dashboard_user
+    why = ("55 % of the held-out data lie within 0.25 s of clipped readings: no physics "
+           "can be told apart from the clipping there")
+    stored = {
+        "mode": "pair", "verdict": "inconclusive", "inconclusive": why,
+        "baseline": {"nrmse": 0.36, "nrmse_validation": 0.36},
+        "augmented": {"nrmse": 0.36, "nrmse_validation": 0.36},
+        "findings": [], "warnings": [{"kind": "clipping", "message": "the wheel clips"}],
+        "departure_map": {"r_edges_m": list(np.linspace(-0.03, 0.03, 13)),
+                          "rdot_edges_mps": list(np.linspace(-0.3, 0.3, 13)),
+                          "mean": [[0.1] * 12 for _ in range(12)],
+                          "count": [[50] * 12 for _ in range(12)]},
+    }
+    result_path(sessions_root / "car-a" / "before.h5", "diagnose").write_text(json.dumps(stored))
+    await user.open("/diagnose?session=car-a%2Fbefore.h5")
+    await user.should_see("Inconclusive: the recording cannot show whether physics is missing",
+                          retries=60)
+    await user.should_see(why)
+    await user.should_see("No finding: the clipped readings hide what the suspension does.")
+    await user.should_not_see("The linear model is adequate")
+    with user:
+        assert _count("region-chart") == 0
+
+
 async def test_navigation_keeps_one_page(dashboard_user) -> None:
     user = dashboard_user
     await user.open("/")
