@@ -985,15 +985,41 @@ def _drop(part: GreyBoxData, mask: np.ndarray) -> GreyBoxData:
 LOST_PEAK_SAMPLES_PER_SHAPE = 20
 
 
+def _travel_force_shapes(peaks: ClippedPeaks, time_s: np.ndarray, vals: dict[str, float]
+                         ) -> np.ndarray:
+    """The shapes of what ``peaks`` lost in the force read on the measured travel and
+    speed at ``time_s``, through the linear spring and damper of ``vals`` (the columns
+    that reach ``time_s``)."""
+    basis = peaks.travel_force_basis(
+        time_s, vals.get("linear_spring.suspension_stiffness_n_per_m", np.nan),
+        vals.get("linear_damper.suspension_damping_ns_per_m", np.nan))
+    return basis[:, np.any(basis != 0.0, axis=0)]
+
+
+def _too_many_lost_peaks(fit: _Fit, prepared: Sequence[_Prepared],
+                         lost: dict[str, ClippedPeaks]) -> bool:
+    """Whether some part of the drives holds fewer than
+    :data:`LOST_PEAK_SAMPLES_PER_SHAPE` samples per shape of what its clipped peaks lost:
+    then their loss cannot be taken out of the departure (:func:`_lost_peak_force`)."""
+    vals = fit.candidate.values
+    for p in prepared:
+        peaks = lost.get(p.drive.label)
+        if peaks is None:
+            continue
+        for part in (p.fit, p.val):
+            t = part.start_s + np.arange(part.n_samples) / part.sample_rate_hz
+            n = _travel_force_shapes(peaks, t, vals).shape[1]
+            if t.size < LOST_PEAK_SAMPLES_PER_SHAPE * n:
+                return True
+    return False
+
+
 def _lost_peak_force(peaks: ClippedPeaks, time_s: np.ndarray, departure: np.ndarray,
                      vals: dict[str, float]) -> np.ndarray:
     """The part of ``departure`` (at ``time_s``) that what the clipped peaks lost
     explains, by least squares on their shapes through the linear spring and damper of
     ``vals`` (zeros where there are no shapes or too few samples for them)."""
-    basis = peaks.travel_force_basis(
-        time_s, vals.get("linear_spring.suspension_stiffness_n_per_m", np.nan),
-        vals.get("linear_damper.suspension_damping_ns_per_m", np.nan))
-    basis = basis[:, np.any(basis != 0.0, axis=0)]
+    basis = _travel_force_shapes(peaks, time_s, vals)
     if basis.shape[1] == 0 or time_s.size < LOST_PEAK_SAMPLES_PER_SHAPE * basis.shape[1]:
         return np.zeros_like(departure)
     design = np.column_stack([basis, np.ones(time_s.size)])
@@ -2133,6 +2159,7 @@ def _diagnose(
         say("  the linear model cannot describe the pair and no effect explains it")
         unexplained, _ = _unexplained(chosen, chosen.prepared, coupling, base, say,
                                       known=tried, reason=hopeless.split(" (")[0])
+    too_many_peaks = False
     if unexplained is not None and any(w.kind == "clipping" for w in warnings):
         # clipping competes: is the structure still there away from the clipped readings?
         share = float(_near_clipping(chosen.runs, clipped).mean())
@@ -2165,15 +2192,26 @@ def _diagnose(
                 "the clipped peaks lost taken out")
             clean = _fit_away_from_clipping(chosen.physics, chosen, coupling, clipped,
                                             mass_bounds)
-            away, _ = _unexplained(clean or chosen, chosen.prepared, coupling, base, say,
-                                   known=tried,
-                                   exclude=lambda d, t: _near(clipped[d.label], t),
-                                   lost=lost)
+            if lost and _too_many_lost_peaks(clean or chosen, chosen.prepared, lost):
+                # what the peaks lost reaches the travel everywhere and cannot be fitted:
+                # the structure cannot be told from it (nor shown absent)
+                say("  too many clipped peaks to take what they lost out of the travel: "
+                    "the structure cannot be told from the clipping")
+                away, too_many_peaks = None, True
+            else:
+                away, _ = _unexplained(clean or chosen, chosen.prepared, coupling, base,
+                                       say, known=tried,
+                                       exclude=lambda d, t: _near(clipped[d.label], t),
+                                       lost=lost)
         if away is None or share > CLIP_DOMINATES:
             unexplained = surface_reported = None
             where = ("sits near the clipped readings ({:.0f} % of the held-out data are "
                      "near them) and cannot be told from the clipping, the simpler "
                      "explanation" if share > CLIP_DOMINATES else
+                     "cannot be told from what the clipped peaks lost ({:.0f} % of the "
+                     "held-out data are near them, but a lost wheel peak ramps the "
+                     "integrated travel for seconds, and they are too many to fit)"
+                     if too_many_peaks else
                      "is not found away from the clipped readings ({:.0f} % of the "
                      "held-out data are near them) with what each clipped peak lost taken "
                      "out (a lost wheel peak ramps the integrated travel for seconds)"
@@ -2181,15 +2219,22 @@ def _diagnose(
             said = any(w.kind == "clipping_explains" for w in warnings)
             warnings += [] if said else [data_checks.DataWarning(
                 "clipping_explains", f"the structure left in the residual {where}: the "
-                "clipping explains the mismatch. Record again with a larger measuring "
-                "range")]
+                + ("clipping may explain it" if too_many_peaks else
+                   "clipping explains the mismatch")
+                + ". Record again with a larger measuring range")]
             if share > CLIP_DOMINATES:
                 hopeless = hopeless or (
                     "the values of the linear model are not reliable: the clipped readings "
                     "corrupt most of the recording")
     # a car judged on a recording the clipping corrupts is not judged adequate
     inconclusive = None
-    if any_clipped and float(_near_clipping(base.runs, clipped).mean()) > CLIP_DOMINATES:
+    if too_many_peaks:
+        inconclusive = (
+            "structure is left in the residual, but the clipped peaks are too many to tell "
+            "it from what they lost (a lost wheel peak ramps the integrated travel for "
+            "seconds): the recording cannot show whether physics is missing. Record again "
+            "with a larger measuring range")
+    elif any_clipped and float(_near_clipping(base.runs, clipped).mean()) > CLIP_DOMINATES:
         inconclusive = (
             f"{100 * float(_near_clipping(base.runs, clipped).mean()):.0f} % of the held-out "
             f"data lie within {CLIP_REACH_S:g} s of clipped readings: no physics can be told "
