@@ -153,9 +153,28 @@ def all_named(named: list[str], effects: list[tuple[str, dict]],
     return all(physics_of(e) & got for e in expected_names(effects, library))
 
 
+def _ride_height_verdict(effects: list[tuple[str, dict]], library: tuple[str, ...],
+                         found: bool, top1: bool | None, errs: list[dict],
+                         reported: str | None, restored: bool) -> tuple[list[str], bool]:
+    """The true effects of the library that act on position, and whether the case is right
+    for its ride height: a linear car with no finding; with such an effect, top-1, its
+    parameters within :data:`PARAM_TOLERANCE` and no wrong ride height reported; else
+    top-1. An effect outside the library has no parameters to get right: it is scored by
+    its top-1 (``unexplained``) alone."""
+    posdep = [n for n, p in effects if n in library and position_dependent(n, p)]
+    if not effects:
+        return posdep, not found
+    if not posdep:
+        return posdep, bool(top1)
+    pos_errs = [e["rel_error"] for e in errs if e["effect"] in posdep]
+    truth = "restored" if restored else "passive"
+    return posdep, (bool(top1) and bool(pos_errs) and max(pos_errs) <= PARAM_TOLERANCE
+                    and reported in (None, truth))
+
+
 def rescore(row: dict[str, Any], library: tuple[str, ...]) -> dict[str, Any]:
-    """A saved row with ``top1`` and ``all_named`` recomputed by the rules above (rows
-    saved before a rule changed are reprinted as it now reads)."""
+    """A saved row with ``top1``, ``all_named`` and the ride-height verdict recomputed by
+    the rules above (rows saved before a rule changed are reprinted as it now reads)."""
     effects = [(e["effect"], e["parameters"]) for e in row["case"]["effects"]]
     row = dict(row)
     if "warnings" in row and "nuisances" in row:
@@ -163,8 +182,14 @@ def rescore(row: dict[str, Any], library: tuple[str, ...]) -> dict[str, Any]:
         row["nuisances"] = {k: {**n, "undecided": k in tied} for k, n in row["nuisances"].items()}
     if not effects or "named" not in row:
         return row
-    return {**row, "top1": right_first(row["named"], effects, library),
-            "all_named": all_named(row["named"], effects, library)}
+    top1 = right_first(row["named"], effects, library)
+    row = {**row, "top1": top1, "all_named": all_named(row["named"], effects, library)}
+    if "ride_height_restored" not in row:
+        return row
+    posdep, right_rh = _ride_height_verdict(
+        effects, library, bool(row["named"]), top1, row.get("param_errors", []),
+        row.get("ride_height_reported"), row["ride_height_restored"])
+    return {**row, "position_dependent": posdep, "right_for_ride_height": right_rh}
 
 
 def position_dependent(name: str, params: dict[str, float]) -> bool:
@@ -251,18 +276,10 @@ def score_case(case: Any, out: dict[str, Any], floor_nrmse: float | None,
             "reported": kind in reported,
             "undecided": kind in undecided,
         }
-    posdep = [n for n, p in effects if position_dependent(n, p)]
     top1 = right_first(named, effects, library) if effects else None
-    pos_errs = [e["rel_error"] for e in errs if e["effect"] in posdep]
     rh = ride_height_reported(out)
-    truth_rh = "restored" if case.ride_height_restored else "passive"
-    if not effects:
-        right_rh = not found
-    elif posdep:
-        right_rh = bool(top1) and bool(pos_errs) and max(pos_errs) <= PARAM_TOLERANCE \
-            and rh in (None, truth_rh)
-    else:
-        right_rh = bool(top1)
+    posdep, right_rh = _ride_height_verdict(effects, library, bool(found), top1, errs, rh,
+                                            case.ride_height_restored)
     unexpl = next((f for f in found if f.get("effect") == UNEXPLAINED), None)
     return {
         "seed": case.seed,

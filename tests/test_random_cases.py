@@ -270,6 +270,13 @@ def test_same_physics_outside_the_library_is_named_or_unexplained() -> None:
     assert rs.right_first(["unexplained"], travel, lib)
     assert not rs.right_first(["bouc_wen"], travel, lib)
     assert not rs.right_first([], travel, lib)
+    # ... and it has no parameters to get right for its ride height: its top-1 decides
+    travel_row = {"case": {"effects": [{"effect": "travel_dependent_damping", "parameters": {
+        "extra_damping_ns_per_m": 500.0, "reference_travel_m": 0.03}}]},
+        "named": ["unexplained"], "param_errors": [], "ride_height_reported": None,
+        "ride_height_restored": True}
+    again = rs.rescore(travel_row, lib)
+    assert again["position_dependent"] == [] and again["right_for_ride_height"] is True
 
 
 def test_a_tie_with_physics_is_told_neither_reported_nor_invented() -> None:
