@@ -196,32 +196,29 @@ class ClippedPeaks:
         wheel's through one linear body (per unit mass: ``stiffness_per_kg`` [N/m/kg],
         ``damping_per_kg`` [N s/m/kg]; none where that body is unknown), the body's as
         the band leaves them."""
-        cols = [np.zeros((np.size(time_s), 0))]
-        for channel, runs in (("wheel", self.wheel_runs_s), ("body", self.body_runs_s)):
-            if runs.size == 0:
-                continue
-            lag, resp = lost_peak_response(self.sample_rate_hz, self.n_samples,
-                                           self.band_hz, self.output_rate_hz,
-                                           stiffness_per_kg, damping_per_kg, channel)
-            if np.any(resp):
-                cols.append(lost_peak_basis(time_s, runs, lag, resp,
-                                            self.band_hz[1] * (1 + dsp.BAND_TAPER)))
-        return np.hstack(cols)
+        return self._shapes(time_s, lambda channel: lost_peak_response(
+            self.sample_rate_hz, self.n_samples, self.band_hz, self.output_rate_hz,
+            stiffness_per_kg, damping_per_kg, channel))
 
     def travel_force_basis(self, time_s: np.ndarray, stiffness: float, damping: float
                            ) -> np.ndarray:
         """What the peaks of either channel lost, as shapes at ``time_s`` of the force a
         linear suspension reads from the measured travel and speed
         (:func:`lost_peak_travel_force`, :func:`lost_peak_basis`)."""
-        cols = [np.zeros((np.size(time_s), 0))]
         if not (np.isfinite(stiffness) and np.isfinite(damping)):
-            return cols[0]
+            return np.zeros((np.size(time_s), 0))
+        return self._shapes(time_s, lambda channel: lost_peak_travel_force(
+            self.sample_rate_hz, self.n_samples, self.band_hz, self.output_rate_hz,
+            stiffness, damping, channel))
+
+    def _shapes(self, time_s: np.ndarray, response) -> np.ndarray:
+        """The shapes at ``time_s`` of every clipped channel's runs, ``response(channel)``
+        giving one lost unit's ``(lag_s, response)`` (:func:`lost_peak_basis`)."""
+        cols = [np.zeros((np.size(time_s), 0))]
         for channel, runs in (("wheel", self.wheel_runs_s), ("body", self.body_runs_s)):
             if runs.size == 0:
                 continue
-            lag, resp = lost_peak_travel_force(self.sample_rate_hz, self.n_samples,
-                                               self.band_hz, self.output_rate_hz,
-                                               stiffness, damping, channel)
+            lag, resp = response(channel)
             if np.any(resp):
                 cols.append(lost_peak_basis(time_s, runs, lag, resp,
                                             self.band_hz[1] * (1 + dsp.BAND_TAPER)))

@@ -2234,9 +2234,10 @@ def _diagnose(
             "it from what they lost (a lost wheel peak ramps the integrated travel for "
             "seconds): the recording cannot show whether physics is missing. Record again "
             "with a larger measuring range")
-    elif any_clipped and float(_near_clipping(base.runs, clipped).mean()) > CLIP_DOMINATES:
+    elif any_clipped and (near := float(_near_clipping(base.runs, clipped).mean())
+                          ) > CLIP_DOMINATES:
         inconclusive = (
-            f"{100 * float(_near_clipping(base.runs, clipped).mean()):.0f} % of the held-out "
+            f"{100 * near:.0f} % of the held-out "
             f"data lie within {CLIP_REACH_S:g} s of clipped readings: no physics can be told "
             "apart from the clipping there, so the recording cannot show whether the linear "
             "model is adequate. Record again with a larger measuring range")
