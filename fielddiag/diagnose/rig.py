@@ -1153,7 +1153,7 @@ def _select_whitened(baseline: CandidateFit, candidates: list[CandidateFit], fit
     hysteresis) whitening weighs the wrong thing, hence the plain test first."""
     from scipy.signal import lfilter
 
-    plain_sel = select_model(baseline, candidates)
+    plain_sel = select_model(baseline, candidates, simplest_alike=False)
     if plain_sel.chosen is not baseline:
         return plain_sel
     res_fit, _ = _residual_and_jac(baseline.extra["model"], baseline.extra["z"], fit)
@@ -1164,7 +1164,7 @@ def _select_whitened(baseline: CandidateFit, candidates: list[CandidateFit], fit
     for c in (baseline, *candidates):
         c.residual_validation = lfilter(w, [1.0], plain[id(c)])[w.size:]
     try:
-        white_sel = select_model(baseline, candidates)
+        white_sel = select_model(baseline, candidates, simplest_alike=False)
     finally:
         for c in (baseline, *candidates):
             c.residual_validation = plain[id(c)]

@@ -77,6 +77,14 @@ def test_free_play_in_the_damper_is_not_a_late_channel():
     case, out = _diagnose(1795907660, "damper_free_play")
     kinds = [d["kind"] for d in out.get("data_problems", [])]
     assert "channel_time_offset" not in kinds, kinds
-    (note,) = [w["message"] for w in out["warnings"] if w["kind"] == "lag_of_the_suspension"]
-    assert "quieter half" in note and "livelier half" in note
     assert out["verdict"] != "adequate"
+    # the lag is the suspension's: told so where a delay competed, or taken by physics
+    # that lags (since session 43's forward pairs a top mount beside quadratic damping,
+    # little force at low speed and a lag: held-out NRMSE 0.317 against the Bouc-Wen
+    # loop's 0.357 named before; free play itself is outside the library)
+    notes = [w["message"] for w in out["warnings"] if w["kind"] == "lag_of_the_suspension"]
+    named = {f["effect"] for f in out["findings"]}
+    if notes:
+        assert "quieter half" in notes[0] and "livelier half" in notes[0]
+    else:
+        assert named & {"series_top_mount", "bouc_wen", "hysteretic_spring"}, named

@@ -290,3 +290,20 @@ def test_a_delay_is_refined_by_the_secant_where_the_model_absorbs_part_of_it():
     # a slope no absorbing model gives (the seen delay growing with the correction): the
     # plain step
     assert _delay_step_s(2.0e-3, 0.5e-3, (1.0e-3, 0.1e-3)) == pytest.approx(0.5e-3)
+
+
+def test_a_simpler_model_that_predicts_as_well_replaces_the_chosen_one():
+    # seed 1795922758: a digressive damper (its per-direction drops and low knees stand for
+    # both) predicted as well as dry friction + asymmetric damping, with one parameter more
+    base = _white(20)
+    friction = _fit(("coulomb_friction",), _scaled(base, 0.23), 4)
+    asym = _fit(("asymmetric_damping",), _scaled(base, 0.94), 3)
+    knee = _fit(("digressive_damping",), 0.42 * _white(21), 6)
+    pair = _fit(("coulomb_friction", "asymmetric_damping"), 0.42 * _white(22), 5)
+    cmp = compare(pair, knee)
+    assert abs(cmp.t) < MIN_T  # the two predict alike
+    chosen = select_model(_fit((), base, 2), [friction, asym, knee, pair]).chosen
+    assert chosen is pair
+    # where the digressive damper predicts clearly better, it keeps its parameter
+    sharper = _fit(("digressive_damping",), _scaled(pair.residual_validation, 0.8), 6)
+    assert select_model(_fit((), base, 2), [friction, asym, sharper, pair]).chosen is sharper
