@@ -133,7 +133,10 @@ def test_virtual_daq_with_faults_recorded_by_the_record_command(tmp_path):
     # the other losses are the frames the device damaged: dropped on their CRC, no more
     damaged_lost = c["frames_lost"] - sum(g["samples_lost"] for g in outage) // SAMPLES_PER_FRAME
     assert 0 < damaged_lost <= device["frames_corrupted"]
-    assert 0 < c["crc_errors"] <= device["frames_corrupted"]
+    # (and a frame the host had read part of when the cable was pulled: its head meets
+    # the bytes sent after the reconnect and fails its CRC; counted lost in the link by
+    # the device. Seen once in 2026-11-29's suite: 64 CRC errors for 63 damaged frames)
+    assert 0 < c["crc_errors"] <= device["frames_corrupted"] + device["disconnects"]
     # frames the device itself dropped (its transmit buffer overflowed while nobody read
     # the port, around the reconnect) are the only ones called 'dropped by device'; the
     # frames that arrive with the INFO answer after the reconnect are kept, not dropped
