@@ -72,7 +72,7 @@ def _linear_case_diagnosed(seed: int, family: str = "linear"):
 
     from fielddiag.diagnose.engine import diagnose_drives
 
-    case = rc.draw_case(seed, duration_s=60.0)
+    case = rc.draw_case(seed, duration_s=60.0, families=rc.PINNED_FAMILIES)
     assert case.family == family
     return case, diagnose_drives(rc.case_drives(case))
 

@@ -21,7 +21,7 @@ def test_weak_asymmetric_damping_beside_friction_is_not_a_digressive_damper():
     # apart beside 210 N of (Dahl) dry friction, 3.2x the noise floor. Asymmetric damping
     # ranked fifth alone, so the pair was never fitted, and a digressive damper (its
     # per-direction drops and 56 mm/s knees stand for both, one parameter more) was named
-    case = rc.draw_case(1795922758, duration_s=60.0)
+    case = rc.draw_case(1795922758, duration_s=60.0, families=rc.PINNED_FAMILIES)
     assert case.family == "asymmetric_damping + dahl_friction"
     diag = diagnose_drives(rc.case_drives(case))
     out = diag.to_dict()

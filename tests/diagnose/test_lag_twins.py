@@ -124,7 +124,7 @@ def test_a_late_channel_beside_dry_friction_is_still_reported():
     # the randomized generator's seed 1795817445 (60 s drives at 724 Hz): Dahl friction
     # and a body channel 2.15 ms late. Above the middle of the band the drives show the
     # delay in full (2.2 ms): reported
-    case = rc.draw_case(1795817445, duration_s=60.0)
+    case = rc.draw_case(1795817445, duration_s=60.0, families=rc.PINNED_FAMILIES)
     assert [e for e, _ in case.effects] == ["dahl_friction"]
     (late,) = [n for n in case.nuisances if n["kind"] == "time_offset"]
     out = diagnose_drives(rc.case_drives(case)).to_dict()
@@ -172,7 +172,7 @@ def test_a_late_channel_beside_a_top_mount_is_not_judged_by_the_mount():
     # mount, and the check above the middle of the band read the delay off the mount's fit
     # to the drives as recorded: the mount had taken it up there too (its lag is a delay
     # at every frequency), so the late channel was withdrawn as the suspension's lag
-    case = rc.draw_case(1795847614, duration_s=60.0)
+    case = rc.draw_case(1795847614, duration_s=60.0, families=rc.PINNED_FAMILIES)
     (late,) = [n for n in case.nuisances if n["kind"] == "time_offset"]
     assert late["channel"] == "body" and late["value"] == pytest.approx(2.41e-3, abs=0.01e-3)
     out = diagnose_drives(rc.case_drives(case)).to_dict()
@@ -188,7 +188,7 @@ def test_twins_are_compared_beside_the_same_gain_correction():
     # beat the delay alone (NRMSE 0.0890 vs 0.0895), took the gain on top, and was
     # reported as a finding although the delay with the same gain predicted better
     # (0.0865 vs 0.0870): twins were matched only without a shared correction
-    case = rc.draw_case(1795919219, duration_s=60.0)
+    case = rc.draw_case(1795919219, duration_s=60.0, families=rc.PINNED_FAMILIES)
     assert case.family == "linear"
     assert case.nuisance("time_offset")["channel"] == "body"
     out = diagnose_drives(rc.case_drives(case)).to_dict()
@@ -209,7 +209,7 @@ def test_a_late_channel_bent_far_off_is_refined_from_the_recorded_drives():
     # against the friction from there the steps swung between -43 and +13 ms and the delay
     # was dropped. Started where the friction on the recorded drives sees less delay left
     # (+1.26 ms), it settles at about 2 ms (the Dahl lag adds a little), and competes
-    case = rc.draw_case(1795928049, duration_s=60.0)
+    case = rc.draw_case(1795928049, duration_s=60.0, families=rc.PINNED_FAMILIES)
     offset = next(n for n in case.nuisances if n["kind"] == "time_offset")
     assert offset["value"] == pytest.approx(1.687e-3, abs=1e-5)
     diag = diagnose_drives(rc.case_drives(case))

@@ -82,7 +82,7 @@ def test_a_gain_change_is_judged_with_the_surface_where_named_physics_misses():
     # drive (gravity: -1.5 +- 0.3 %, the body unchanged). Judged with quadratic damping
     # alone the correction predicted worse (t = -4.2) and the gain went unreported; with
     # the surface, which predicts far better than the named physics, it predicts better
-    case = rc.draw_case(1795919933, duration_s=60.0)
+    case = rc.draw_case(1795919933, duration_s=60.0, families=rc.PINNED_FAMILIES)
     assert case.family == "quadratic_damping + travel_dependent_damping"
     out = diagnose_drives(rc.case_drives(case)).to_dict()
     assert case.nuisance("gain_change")["channel"] == "wheel"

@@ -28,7 +28,7 @@ SEED = 1795875860
 
 @pytest.mark.timeout(900)
 def test_friction_a_late_channel_and_a_gain_change_are_told_apart():
-    case = rc.draw_case(SEED, duration_s=60.0)
+    case = rc.draw_case(SEED, duration_s=60.0, families=rc.PINNED_FAMILIES)
     ((effect, truth),) = case.effects
     assert effect == "coulomb_friction"
     nuisance = {n["kind"]: n for n in case.nuisances}

@@ -25,7 +25,7 @@ def test_a_self_levelled_bump_stop_unphysical_under_passive_sag_is_found():
     # under passive sag it predicted 5x better than the linear model with its mass pinned
     # at the 20 t bound; the restored fit was tried only after a physical passive one,
     # so a cubic spring was named (and passive sag "supported", t = 3.8)
-    case = rc.draw_case(1795919950, duration_s=60.0)
+    case = rc.draw_case(1795919950, duration_s=60.0, families=rc.PINNED_FAMILIES)
     assert case.family == "bump_stop" and case.ride_height_restored
     out = diagnose_drives(rc.case_drives(case)).to_dict()
     assert [f["effect"] for f in out["findings"]] == ["bump_stop"], out["findings"]
@@ -43,7 +43,7 @@ def test_a_pinned_single_joins_the_pairs():
     # quadratic damping (5.9x the noise floor). Asymmetric damping alone pinned its
     # compression damping, so the pair was never fitted and a digressive damper with
     # negative drops (a progressive one) was named
-    case = rc.draw_case(1795919995, duration_s=60.0)
+    case = rc.draw_case(1795919995, duration_s=60.0, families=rc.PINNED_FAMILIES)
     assert case.family == "asymmetric_damping + quadratic_damping"
     out = diagnose_drives(rc.case_drives(case)).to_dict()
     found = {f["effect"]: f["parameters"] for f in out["findings"]}
