@@ -262,7 +262,8 @@ def select_model(baseline: CandidateFit, candidates: Sequence[CandidateFit], *,
     best single effect it contains, and a pair without the chosen single must beat that
     single and each of its own parts. What corrects the recording only is judged by its gain
     in the typical block (:meth:`Comparison.gain`). Candidates with a parameter pinned at
-    a bound are unphysical and never chosen.
+    a bound are unphysical and never chosen. The model chosen must also beat every
+    simpler candidate that would be chosen in its own right (``simplest_alike``).
 
     Parameters
     ----------
