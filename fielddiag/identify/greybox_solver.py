@@ -19,7 +19,8 @@ through scipy (``fit_greybox(..., solver="trf")``) for comparison.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from collections import OrderedDict
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -262,16 +263,23 @@ def scipy_trf(
                      bool(sol.status > 0), str(sol.message), history, active)
 
 
-def solve(method: str, *args: Any, **kw: Any) -> LMOutcome:
+def solve(method: str, fun: Any, x0: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+          **kw: Any) -> LMOutcome:
     """Run the named optimiser (``"lm"``: :func:`levenberg_marquardt`; ``"trf"``:
     :func:`scipy_trf`) with the arguments of :func:`levenberg_marquardt`.
+
+    A parameter whose bounds meet (``lower >= upper``: the data resolve no range of it) is
+    held at its lower bound and the optimiser runs on the others (both need a strictly
+    open box); it is reported ``active`` and keeps its column of the Jacobian.
 
     Parameters
     ----------
     method : str
         ``"lm"`` or ``"trf"``.
-    *args, **kw
-        Passed on (``fun, x0, lower, upper`` and the options).
+    fun, x0, lower, upper
+        As :func:`levenberg_marquardt`.
+    **kw
+        Its options, passed on.
 
     Returns
     -------
@@ -282,11 +290,45 @@ def solve(method: str, *args: Any, **kw: Any) -> LMOutcome:
     ValueError
         Unknown ``method`` (the callers check the user's choice first).
     """
-    if method == "lm":
-        return levenberg_marquardt(*args, **kw)
-    if method == "trf":
-        return scipy_trf(*args, **kw)
-    raise ValueError(f"unknown solver {method!r}; use 'lm' or 'trf'")
+    solvers = {"lm": levenberg_marquardt, "trf": scipy_trf}
+    if method not in solvers:
+        raise ValueError(f"unknown solver {method!r}; use 'lm' or 'trf'")
+    lower, upper = np.asarray(lower, float), np.asarray(upper, float)
+    held = ~(lower < upper)
+    if not held.any():
+        return solvers[method](fun, x0, lower, upper, **kw)
+    x_held = np.where(held, lower, np.clip(np.asarray(x0, float), lower, upper))
+    free = ~held
+    # the full Jacobians of the last few points evaluated: the outcome keeps every column
+    jacobians: OrderedDict[bytes, np.ndarray] = OrderedDict()
+
+    def expand(q: np.ndarray) -> np.ndarray:
+        x = x_held.copy()
+        x[free] = q
+        return x
+
+    def fun_free(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        r, j = fun(expand(q))
+        jacobians[np.asarray(q, float).tobytes()] = j
+        while len(jacobians) > 4:
+            jacobians.popitem(last=False)
+        return r, j[:, free]
+
+    if not free.any():
+        r, j = fun(x_held)
+        cost = 0.5 * float(r @ r)
+        return LMOutcome(x_held, r, j, cost, 0, 1, True,
+                         "every parameter held where its bounds meet", [cost], held.copy())
+    if kw.get("callback") is not None:
+        user_callback = kw["callback"]
+        kw["callback"] = lambda it, q, cost: user_callback(it, expand(q), cost)
+    out = solvers[method](fun_free, x_held[free], lower[free], upper[free], **kw)
+    jac = jacobians.get(np.asarray(out.x, float).tobytes())
+    if jac is None:
+        _, jac = fun(expand(out.x))
+    active = held.copy()
+    active[free] = out.active
+    return replace(out, x=expand(out.x), jacobian=jac, active=active)
 
 
 # ---------------------------------------------------------------------------------------

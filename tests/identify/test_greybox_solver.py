@@ -167,3 +167,27 @@ def test_hac_finds_the_long_run_variance_of_ar1_residuals():
     ratio = cov[0, 0] / info["white_covariance"][0, 0]
     assert ratio == pytest.approx((1 + phi) / (1 - phi), rel=0.15)
     assert info["lag_window_samples"] >= 5  # rho^L falls under 2 sqrt(log10(n)/n) at L ~ 8
+
+
+@pytest.mark.parametrize("method", ["lm", "trf"])
+def test_a_parameter_whose_bounds_meet_is_held_and_the_rest_fitted(method):
+    # the data may resolve no range of a parameter (its resolved upper bound at its lower
+    # one): both optimisers need an open box, and one such parameter raised "Each lower
+    # bound must be strictly less than each upper bound" out of a whole diagnosis (seed
+    # 1795936923 of the randomized benchmark)
+    _, _, fun = _exp_problem(2.0, 0.8, 0.0, 0)
+    lower, upper = np.array([0.0, 0.5]), np.array([10.0, 0.5])
+    out = solve(method, fun, np.array([1.0, 0.3]), lower, upper, max_iterations=100)
+    assert out.x[1] == 0.5 and out.active.tolist() == [False, True]
+    # the amplitude is the least-squares one for tau = 0.5, as with tau held by the gradient
+    t = np.linspace(0.0, 5.0, 200)
+    e = np.exp(-t / 0.5)
+    y = 2.0 * np.exp(-t / 0.8)
+    assert out.x[0] == pytest.approx(float(e @ y / (e @ e)), rel=1e-5)
+    # the Jacobian keeps both columns (the covariance needs them)
+    assert out.jacobian.shape == (200, 2)
+    np.testing.assert_allclose(out.jacobian, fun(out.x)[1])
+    # every parameter held: one evaluation, nothing to fit
+    both = solve(method, fun, np.array([1.0, 0.3]), np.array([2.0, 0.5]),
+                 np.array([2.0, 0.5]))
+    assert both.x.tolist() == [2.0, 0.5] and both.evaluations == 1 and both.active.all()
