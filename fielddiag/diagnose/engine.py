@@ -1704,7 +1704,8 @@ def _diagnose(
     done = map_threads(lambda cr: grey(cr[0], restored_on) if cr[1] else grey(cr[0]),
                        to_fit, cost=lambda cr: cost(cr[0]))
     fits += [f for f in done if f is not None]
-    physics = select_model(base.candidate, [f.candidate for f in fits[1:]])
+    twins = frozenset(e for e in effects if EFFECTS[e].data_twins)
+    physics = select_model(base.candidate, [f.candidate for f in fits[1:]], data_twins=twins)
     physics_fit = next(f for f in fits if f.candidate is physics.chosen)
     surface_wins = _surface_wins(surface_fit, physics_fit, base, say)
 
@@ -2064,7 +2065,8 @@ def _diagnose(
             look_behind_chain(test_data(d, converged))
     # a data problem whose refined estimate is within MIN_Z standard deviations of zero is
     # not told from none: its corrected fits do not compete
-    sel = select_model(base.candidate, [f.candidate for f in fits[1:] if _competes(f)])
+    sel = select_model(base.candidate, [f.candidate for f in fits[1:] if _competes(f)],
+                       data_twins=twins)
     chosen = next(f for f in fits if f.candidate is sel.chosen)
     gain = _decisive_gain_elsewhere(chosen, physics_fit, fits)
     if gain is not None:
