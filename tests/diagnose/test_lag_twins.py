@@ -229,8 +229,9 @@ def test_the_delay_in_windows_has_the_spread_of_its_estimates():
     # the std of a delay read off one-second windows whose misfit is correlated in time
     # (noise in the analysis band, 0.5 Hz up to a few Hz or to 30 Hz, as a model's misfit
     # is) matches the spread of the estimate over independent draws
-    from fielddiag.diagnose.engine import _delay_over_windows
     from scipy.signal import butter, sosfiltfilt
+
+    from fielddiag.diagnose.engine import _delay_over_windows
 
     rate, tau = 500.0, 3e-4
     sos_motion = butter(2, 8.0, fs=rate, output="sos")
