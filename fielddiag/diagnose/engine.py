@@ -2579,9 +2579,16 @@ def _physics_twin(chosen: _Fit, fits: Sequence[_Fit]) -> tuple[_Fit, str, str] |
     pick = chosen if (chosen is data) == (t >= 0) else (data if chosen is twin else twin)
     names = " + ".join(e.replace("_", " ") for e in set(twin.physics) - set(data.physics))
     problem = f"a {_DATA_LABEL[told.kind]} ({_data_size(told)})"
+    ahead = "data problem" if t >= 0 else names
     both = (f"{problem} and a {names} explain the held-out data within two standard errors "
-            f"(t = {abs(t):.1f} for the {'data problem' if t >= 0 else names}): these data "
-            "cannot tell the two apart. ")
+            f"(t = {abs(t):.1f} for the {ahead}): these data cannot tell the two apart. "
+            if abs(t) < TWIN_T else
+            # significant, but by less than a parameter must earn (seed 1795941185: the
+            # late channel ahead at t = 6.5 was worded "within two standard errors")
+            f"{problem} and a {names} explain the held-out data alike: the {ahead} "
+            f"predicts them only {100 * better.relative_gain:.1f} % better (t = "
+            f"{abs(t):.1f}), under the {100 * MIN_GAIN_PER_PARAM:.0f} % a parameter must "
+            "earn. ")
     if pick is data:
         note = both + (f"The findings assume the {problem[2:]}; a {names} would explain it "
                        "as well")
