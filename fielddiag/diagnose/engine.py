@@ -2588,7 +2588,7 @@ def _physics_twin(chosen: _Fit, fits: Sequence[_Fit]) -> tuple[_Fit, str, str] |
             f"{problem} and a {names} explain the held-out data alike: the {ahead} "
             f"predicts them only {100 * better.relative_gain:.1f} % better (t = "
             f"{abs(t):.1f}), under the {100 * MIN_GAIN_PER_PARAM:.0f} % a parameter must "
-            "earn. ")
+            "earn: by what they predict, these data cannot tell the two apart. ")
     if pick is data:
         note = both + (f"The findings assume the {problem[2:]}; a {names} would explain it "
                        "as well")

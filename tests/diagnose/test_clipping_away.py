@@ -209,7 +209,8 @@ def test_a_tie_by_a_gain_too_small_to_earn_a_parameter_says_so():
     out = diag.to_dict()
     (tie,) = [w["message"] for w in out["warnings"] if w["kind"] == "data_problem_or_physics"]
     m = re.search(r"explain the held-out data alike: the data problem predicts them only "
-                  r"([\d.]+) % better \(t = ([\d.]+)\), under the 2 % a parameter must earn",
+                  r"([\d.]+) % better \(t = ([\d.]+)\), under the 2 % a parameter must earn: "
+                  r"by what they predict, these data cannot tell the two apart",
                   tie)
     assert m, tie
     assert float(m[1]) < 2.0 and float(m[2]) >= 2.0
