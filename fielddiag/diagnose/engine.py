@@ -2958,9 +2958,9 @@ def _delay_over_windows(residual: np.ndarray, derivative: np.ndarray) -> tuple[f
     inflation (3x) over-stated it by 2-4x on the random benchmark's cases (session 44:
     the windows' std hardly changes between 0.5 and 2 s windows there, and matches the
     spread of the estimate within 15 % on band-limited misfits), and hid a lag of Dahl
-    friction that shrinks from
-    0.35 ms in the quiet half to 0.24 ms in the lively (seed 1795938609); true late
-    channels differ there by 0.00-0.02 of themselves."""
+    friction that shrinks from 0.35 ms in the quiet half to 0.24 ms in the lively (seed
+    1795938609); true late channels differ there by 0.00-0.02 of themselves. The delay
+    itself is :func:`_delay_ls`'s (the same sums, over all windows)."""
     num = np.sum(residual * derivative, axis=1)
     den = np.sum(derivative * derivative, axis=1)
     total = float(den.sum())
