@@ -285,6 +285,10 @@ def fit_greybox(
     z = out.x * scale
     theta_u, mass, nuis = prob.unpack(z)
 
+    if not (np.all(np.isfinite(out.jacobian)) and np.all(np.isfinite(out.residual))):
+        # LAPACK's SVD would loop on the non-finite values instead of failing
+        raise np.linalg.LinAlgError(
+            f"the model does not run at its start values ({out.message})")
     # ---- covariance (sandwich per session, summed), in z units
     jz = out.jacobian / scale  # d r / d z
     bmat = np.zeros((jz.shape[1], jz.shape[1]))
@@ -297,7 +301,13 @@ def fit_greybox(
         bmat += b_s
         white += w_s
         lags.append(lag / pr.data.sample_rate_hz)
-    ainv = np.linalg.pinv((jz.T @ jz) * np.outer(scale, scale)) * np.outer(scale, scale)
+    normal = (jz.T @ jz) * np.outer(scale, scale)
+    if not (np.all(np.isfinite(normal)) and np.all(np.isfinite(bmat))):
+        # an overflowing Jacobian (a model at an extreme of its bounds): LAPACK's SVD
+        # would loop on it instead of failing
+        raise np.linalg.LinAlgError("the fit ended where the model's sensitivities "
+                                    "overflow; its uncertainty cannot be computed")
+    ainv = np.linalg.pinv(normal) * np.outer(scale, scale)
     cov_z = ainv @ _psd_clip(bmat) @ ainv
     cov_white = ainv @ white @ ainv
 

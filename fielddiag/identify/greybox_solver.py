@@ -149,6 +149,13 @@ def levenberg_marquardt(
             break
         a = np.vstack([rmat, np.diag(math.sqrt(lam) * dscale)])
         b = np.concatenate([-qtr, np.zeros(n)])
+        if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
+            # an overflowing Jacobian or damping: LAPACK's least squares would loop on the
+            # non-finite values (numpy's lstsq never returns), so the fit ends here
+            message = ("stopped: the step could not be computed (the Jacobian or its "
+                       "damping overflowed)")
+            it -= 1
+            break
         if bounded:
             sol = optimize.lsq_linear(a, b, bounds=(lower - x, upper - x), method="bvls",
                                       lsmr_tol=None, max_iter=200)
@@ -162,7 +169,9 @@ def levenberg_marquardt(
         x_new = x + d
         r_new, jac_new = fun(x_new)
         evaluations += 1
-        cost_new = 0.5 * float(r_new @ r_new) if np.all(np.isfinite(r_new)) else math.inf
+        # a trial point whose residual or Jacobian overflows is rejected like a worse one
+        finite = bool(np.all(np.isfinite(r_new)) and np.all(np.isfinite(jac_new)))
+        cost_new = 0.5 * float(r_new @ r_new) if finite else math.inf
         ared = cost - cost_new
         rho = ared / pred if pred > 0 else -1.0
         step_small = np.linalg.norm(d * dscale) <= xtol * (np.linalg.norm(x * dscale) + xtol)

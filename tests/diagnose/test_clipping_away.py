@@ -215,3 +215,26 @@ def test_a_tie_by_a_gain_too_small_to_earn_a_parameter_says_so():
     assert m, tie
     assert float(m[1]) < 2.0 and float(m[2]) >= 2.0
     assert "within two standard errors" not in tie
+
+
+@pytest.mark.timeout(300)
+def test_a_fit_whose_sensitivities_overflow_is_dropped_not_run_for_ever():
+    # the randomized generator's seed 1795948194 (60 s drives at 242 Hz): a linear car, its
+    # wheel clipped on 0.7-0.9 % of the samples. The bump stop's fit ended where its
+    # sensitivities overflow, and the SVD of its covariance looped on them: the case ran
+    # for over 20 minutes. The fit is dropped with a message; the rest is diagnosed
+    messages: list[str] = []
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
+    import random_cases as rc
+
+    from fielddiag.diagnose.engine import diagnose_drives
+
+    case = rc.draw_case(1795948194, duration_s=60.0, families=rc.PINNED_FAMILIES)
+    assert case.family == "linear"
+    out = diagnose_drives(rc.case_drives(case), progress=messages.append).to_dict()
+    assert not out["findings"], out["findings"]
+    dropped = [m for m in messages if "bump_stop could not be fitted" in m]
+    assert dropped and "sensitivities overflow" in dropped[0], messages

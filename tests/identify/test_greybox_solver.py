@@ -191,3 +191,21 @@ def test_a_parameter_whose_bounds_meet_is_held_and_the_rest_fitted(method):
     both = solve(method, fun, np.array([1.0, 0.3]), np.array([2.0, 0.5]),
                  np.array([2.0, 0.5]))
     assert both.x.tolist() == [2.0, 0.5] and both.evaluations == 1 and both.active.all()
+
+
+def test_a_trial_point_whose_jacobian_overflows_is_rejected():
+    """Residuals finite and lower everywhere past x = 2, but the Jacobian there overflows
+    (a bump stop's exponential far beyond its gap): LAPACK's least squares and SVD loop
+    for ever on such values (seed 1795948194 hung the diagnosis for 20 minutes), so the
+    trial must be rejected like a worse point, and the solver end at a finite Jacobian."""
+
+    def fun(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        r = np.array([3.0 - x[0]])
+        j = np.array([[-1.0]]) if x[0] <= 2.0 else np.array([[np.inf]])
+        return r, j
+
+    out = levenberg_marquardt(fun, np.array([0.0]), np.array([-10.0]), np.array([10.0]),
+                              max_iterations=200)
+    assert np.all(np.isfinite(out.jacobian))
+    assert out.x[0] <= 2.0
+    assert out.cost >= 0.5 - 1e-9
