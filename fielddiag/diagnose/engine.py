@@ -73,7 +73,7 @@ from fielddiag.diagnose.selection import (
     paired_block_t,
     select_model,
 )
-from fielddiag.diagnose.shape import fit_shape_model
+from fielddiag.diagnose.shape import fit_shape_model, travel_since_reversal
 from fielddiag.diagnose.surface_words import describe_force_surface
 from fielddiag.drive import CornerDrive, read_corner_drive
 from fielddiag.effects import EFFECTS, ForceModel, diagnosis_effects, get_effect, split_shape
@@ -1186,14 +1186,17 @@ def _unexplained(
     # independent simulator's cases: benchmarks/foreign_cases.py). New physics is not a
     # tilt of the linear model's own terms.
     dec = dep - _linear_trend(r, v, dep, ~is_val)
-    dmap = departure_map(r[~is_val], v[~is_val], dec[~is_val], bins=12)
-    i = np.clip(np.searchsorted(dmap.r_edges_m, r[is_val]) - 1, 0, dmap.mean.shape[0] - 1)
-    j = np.clip(np.searchsorted(dmap.rdot_edges_mps, v[is_val]) - 1, 0, dmap.mean.shape[1] - 1)
-    ok = dmap.count[i, j] >= 30
-    pred = np.where(ok, np.nan_to_num(dmap.mean[i, j]), 0.0)
-    e = dec[is_val] - np.mean(dec[~is_val])
-    t = paired_block_t(e, e - pred)
-    gain = 1.0 - float(np.mean((e - pred) ** 2) / np.mean(e**2))
+    dmap, gain, t = _map_predicts(r, v, dec, is_val)
+    # and over the travel since the motion last reversed: force that depends on the
+    # history since the reversal (a damper idle in a free play, a slack mounting) spreads
+    # thin over travel and speed, but not over that
+    _, gain_rev, t_rev = _map_predicts(travel_since_reversal(r, v, segments), v, dec, is_val)
+    since_reversal = gain_rev > gain and t_rev >= 4.0
+    if since_reversal:
+        say(f"  over the travel since each reversal the structure is clearer: "
+            f"{100 * gain_rev:.1f} % of the residual (t = {t_rev:.1f}), "
+            f"{100 * gain:.1f} % over travel and speed")
+        gain, t = gain_rev, t_rev
     share = gain
     if baseline is not None and baseline is not fit:
         share = gain * fit.candidate.mse_validation / baseline.candidate.mse_validation
@@ -1244,12 +1247,28 @@ def _unexplained(
         "held_out_gain": shape.held_out_gain,
         "explanation": (
             f"{100 * gain:.0f} % of the force the model leaves unexplained depends on "
-            f"suspension travel and speed in a way none of the known effects ({names}) "
+            + ("the travel since each reversal of the motion and the speed"
+               if since_reversal else "suspension travel and speed")
+            + f" in a way none of the known effects ({names}) "
             f"describes. Its shape: {words}. A smooth model of that shape is attached "
             f"(it predicts {100 * shape.held_out_gain:.0f} % of the force left on held-out "
             "data); see the departure map for where it acts"
         ),
     }, full_map
+
+
+def _map_predicts(x: np.ndarray, v: np.ndarray, dec: np.ndarray, is_val: np.ndarray
+                  ) -> tuple[DepartureMap, float, float]:
+    """A departure map over (``x``, ``v``) of the fit samples, and how well it predicts
+    the held-out ones: (map, share of the held-out residual it predicts, paired-block t).
+    Coarse bins, each with >= 30 samples: structure a short or noisy drive cannot fake."""
+    dmap = departure_map(x[~is_val], v[~is_val], dec[~is_val], bins=12)
+    i = np.clip(np.searchsorted(dmap.r_edges_m, x[is_val]) - 1, 0, dmap.mean.shape[0] - 1)
+    j = np.clip(np.searchsorted(dmap.rdot_edges_mps, v[is_val]) - 1, 0, dmap.mean.shape[1] - 1)
+    pred = np.where(dmap.count[i, j] >= 30, np.nan_to_num(dmap.mean[i, j]), 0.0)
+    e = dec[is_val] - np.mean(dec[~is_val])
+    t = paired_block_t(e, e - pred)
+    return dmap, 1.0 - float(np.mean((e - pred) ** 2) / np.mean(e**2)), t
 
 
 #: The effect that names no physics (:mod:`fielddiag.effects.force_surface`).

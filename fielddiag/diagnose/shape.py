@@ -4,12 +4,16 @@ a hysteresis state, and its shape in words.
 When the diagnosis is left with structure that no effect of the library explains, it does
 not force a name on it. It fits the force the model leaves (the *departure*, in N) as
 
-    departure(r, rdot) = S(r, rdot) + F_h w(t)
+    departure(r, rdot) = S(r, rdot) + F_h w(t) + D rdot idle_g(t)
 
 with ``S`` a tensor-product cubic B-spline (knots at quantiles of the measured travel and
-speed, so each cell holds data) and ``w`` a Dahl hysteresis state (``dw/dt = (rdot -
-|rdot| w) / x_y``, its yield travel chosen on a grid), by ridge-regularised linear least
-squares on the fit part of the drives; its gain is scored on the held-out part. The
+speed, so each cell holds data), ``w`` a Dahl hysteresis state (``dw/dt = (rdot -
+|rdot| w) / x_y``, its yield travel chosen on a grid) and ``D`` a damping that acts only
+while the travel is inside a play of ``+-g`` (``rdot`` where a backlash of half-width
+``g`` does not follow the travel, ``g`` chosen on a grid: what a free play or a slack
+mounting does, the damper idle for the first ``2 g`` after each reversal), by
+ridge-regularised linear least squares on the fit part of the drives; each state term is
+kept only where it earns its column on the held-out part. The
 fitted surface is then read back in words a technician understands: where the force
 rises steeper (or softer) than the linear spring, where the damping grows or fades and in
 which direction, and how much energy a hysteresis loop holds per cycle.
@@ -24,7 +28,7 @@ import numpy as np
 from numba import njit
 from scipy.interpolate import BSpline
 
-__all__ = ["ShapeModel", "describe_shape", "fit_shape_model"]
+__all__ = ["ShapeModel", "describe_shape", "fit_shape_model", "travel_since_reversal"]
 
 #: Interior knots per axis of the spline surface (cubic: knots + 4 basis functions).
 INTERIOR_KNOTS = 4
@@ -47,6 +51,45 @@ def _basis_1d(x: np.ndarray, knots: np.ndarray) -> np.ndarray:
 
 def _tensor(br: np.ndarray, bv: np.ndarray) -> np.ndarray:
     return (br[:, :, None] * bv[:, None, :]).reshape(br.shape[0], -1)
+
+
+def travel_since_reversal(r_m: np.ndarray, rdot_mps: np.ndarray,
+                          segments: np.ndarray | None = None) -> np.ndarray:
+    """Travel since the motion last reversed (the last sign change of ``rdot``) [m].
+
+    Signed like the motion since the reversal; 0 at the start of each segment.
+
+    Parameters
+    ----------
+    r_m, rdot_mps : ndarray
+        Travel [m] and its rate [m/s] along a path.
+    segments : ndarray or None
+        Segment label per sample (the count restarts in each).
+
+    Returns
+    -------
+    numpy.ndarray
+
+    Examples
+    --------
+    >>> r = np.array([0.0, 1.0, 2.0, 1.5, 0.5, 1.0])
+    >>> travel_since_reversal(r, np.gradient(r)).tolist()
+    [0.0, 1.0, 2.0, -0.5, -1.5, 0.5]
+    """
+    r = np.asarray(r_m, float)
+    v = np.asarray(rdot_mps, float)
+    seg = np.zeros(r.size, int) if segments is None else np.asarray(segments)
+    out = np.zeros_like(r)
+    for label in np.unique(seg):
+        on = np.flatnonzero(seg == label)
+        rs = r[on]
+        start = np.zeros(rs.size, dtype=int)
+        turns = np.flatnonzero(np.diff(np.signbit(v[on]))) + 1
+        # the turning point is the sample before the rate changes sign
+        start[turns] = turns - 1
+        start = np.maximum.accumulate(start)
+        out[on] = rs - rs[start]
+    return out
 
 
 def dahl_state(rdot_mps: np.ndarray, sample_rate_hz: float, yield_m: float,
@@ -115,6 +158,8 @@ class ShapeModel:
     yield_displacement_m: float
     held_out_gain: float
     description: list[str] = field(default_factory=list)
+    play_half_width_m: float = math.nan
+    play_damping_ns_per_m: float = 0.0
 
     def surface(self, r_m: np.ndarray, rdot_mps: np.ndarray) -> np.ndarray:
         """The memoryless part ``S(r, rdot)`` [N] at the given points.
@@ -141,15 +186,69 @@ class ShapeModel:
         dict
         """
         return {
-            "kind": "cubic B-spline surface in travel and speed + Dahl hysteresis state",
+            "kind": ("cubic B-spline surface in travel and speed + Dahl hysteresis state"
+                     " + damping idle inside a play"),
             "r_knots_m": self.r_knots_m.tolist(),
             "rdot_knots_mps": self.rdot_knots_mps.tolist(),
             "coefficients_n": self.coefficients_n.tolist(),
             "hysteretic_force_n": self.hysteretic_force_n,
             "yield_displacement_m": self.yield_displacement_m,
             "held_out_gain": self.held_out_gain,
+            "play_half_width_m": self.play_half_width_m,
+            "play_damping_ns_per_m": self.play_damping_ns_per_m,
             "description": list(self.description),
         }
+
+
+#: Half-widths of the play tried for the damping idle inside a play [m].
+PLAY_GRID_M = (2.5e-4, 5e-4, 1e-3, 2e-3, 4e-3, 8e-3)
+
+
+def play_idle(r_m: np.ndarray, half_width_m: float,
+              segments: np.ndarray | None = None) -> np.ndarray:
+    """Where a backlash of half-width ``g`` on the travel stands still (1.0) or follows
+    it (0.0): the play operator ``q = clip(q, r - g, r + g)``, started centred in each
+    segment.
+
+    Parameters
+    ----------
+    r_m : ndarray
+        Travel [m] along a path.
+    half_width_m : float
+        Half-width ``g`` of the play [m].
+    segments : ndarray or None
+        Segment label per sample (the operator restarts in each).
+
+    Returns
+    -------
+    numpy.ndarray
+
+    Examples
+    --------
+    >>> play_idle(np.array([0.0, 1.0, 2.0, 3.0, 2.5, 1.5, 0.5]), 1.0).tolist()
+    [1.0, 1.0, 0.0, 0.0, 1.0, 1.0, 0.0]
+    """
+    r = np.asarray(r_m, float)
+    seg = np.zeros(r.size, np.int64) if segments is None else np.asarray(segments, np.int64)
+    return _play_idle(r, float(half_width_m), seg)
+
+
+@njit(cache=True)
+def _play_idle(r, g, seg):  # pragma: no cover - compiled
+    out = np.ones(r.size)
+    q = r[0] if r.size else 0.0
+    for i in range(r.size):
+        if i == 0 or seg[i] != seg[i - 1]:
+            q = r[i]
+            continue
+        lo, hi = r[i] - g, r[i] + g
+        if q < lo:
+            q = lo
+            out[i] = 0.0
+        elif q > hi:
+            q = hi
+            out[i] = 0.0
+    return out
 
 
 def _knots(x: np.ndarray) -> np.ndarray:
@@ -216,13 +315,25 @@ def fit_shape_model(
 
     best_gain, best_coef = score(base)
     best_yield, best_fh = math.nan, 0.0
+    best_w = np.zeros((r.size, 0))
     for xy in YIELD_GRID_M:
         w = dahl_state(v, sample_rate_hz, xy, segments)
         gain, coef = score(np.column_stack([base, w]))
         if gain > best_gain + 0.01:  # the state must earn its column
             best_gain, best_coef, best_yield, best_fh = gain, coef[:-1], xy, float(coef[-1])
+            best_w = w[:, None]
+    # damping idle inside a play: the speed where a backlash of half-width g stands still
+    play_g, play_d = math.nan, 0.0
+    for g in PLAY_GRID_M:
+        idle = v * play_idle(r, g, segments)
+        gain, coef = score(np.column_stack([base, best_w, idle]))
+        if gain > best_gain + 0.01:  # the state must earn its column
+            best_gain, best_coef, play_g, play_d = gain, coef[:base.shape[1]], g, float(coef[-1])
+            if best_w.shape[1]:
+                best_fh = float(coef[base.shape[1]])
     model = ShapeModel(kr, kv, best_coef.reshape(kr.size + 2, kv.size + 2), best_fh,
-                       best_yield, best_gain)
+                       best_yield, best_gain, play_half_width_m=play_g,
+                       play_damping_ns_per_m=play_d)
     model.description = describe_shape(model, r[fit], v[fit], sample_rate_hz,
                                        stiffness_n_per_m, damping_ns_per_m)
     return model
@@ -327,7 +438,25 @@ def describe_shape(model: ShapeModel, r_m: np.ndarray, rdot_mps: np.ndarray,
             out.append(f"a hysteresis loop of {power / freq:.3g} J per cycle at {freq:.2g} Hz "
                        f"(the force lags the travel by about {1e3 * model.yield_displacement_m:.2g}"
                        f" mm after each reversal, {abs(model.hysteretic_force_n):.3g} N high)")
+    if model.play_damping_ns_per_m and math.isfinite(model.play_half_width_m):
+        out.append(_play_words(model, c))
     if not out:
         out.append("the force departs from the linear spring and damper without a simple "
                    "trend in travel or speed; see the departure map")
     return out
+
+
+def _play_words(model: ShapeModel, damping_ns_per_m: float | None) -> str:
+    """The damping inside the play in words."""
+    # the departure is D rdot idle; the damper's force on the body is -c rdot: damping -D
+    change = -model.play_damping_ns_per_m
+    g_mm = 1e3 * model.play_half_width_m
+    if damping_ns_per_m:
+        size = f"{100 * abs(change) / abs(damping_ns_per_m):.0f} % "
+    else:
+        size = f"{abs(change):.3g} N s/m "
+    how = "lower" if change < 0 else "higher"
+    return (f"the damping is {size}{how} for the first {2 * g_mm:.2g} mm of travel after each "
+            f"reversal of the motion (inside a play of +-{g_mm:.2g} mm"
+            + (": as a free play or a slack mounting of the damper would make it)"
+               if change < 0 else ")"))
