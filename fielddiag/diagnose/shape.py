@@ -339,6 +339,21 @@ def fit_shape_model(
     return model
 
 
+def _amount(change: float, of: str = "stiffness") -> str:
+    """A relative change in words: a percentage, or, where a decrease passes 100 % (the
+    departure turns the linear term's sign: a departure from a named model may), a
+    multiple of the linear spring's or damper's own value."""
+    if change >= -1.0:
+        return f"{100 * abs(change):.0f} %"
+    return f"{-change:.1f} times the linear {'spring' if of == 'stiffness' else 'damper'}'s"
+
+
+def _changed(change: float, how: str) -> str:
+    """``37 % lower``, or ``lower by 1.9 times the linear damper's`` (:func:`_amount`)."""
+    return (f"{_amount(change, 'damping')} {how}" if change >= -1.0
+            else f"{how} by {_amount(change, 'damping')}")
+
+
 def _first_beyond(x: np.ndarray, change: np.ndarray) -> tuple[float, float] | None:
     """(where along x the relative change first exceeds SHAPE_CHANGE and stays, its mean
     change beyond), scanning outward from the centre."""
@@ -389,7 +404,9 @@ def describe_shape(model: ShapeModel, r_m: np.ndarray, rdot_mps: np.ndarray,
         if hit is not None:
             where, change = hit
             how = "steeper" if change > 0 else "softer"
-            size = f"{100 * abs(change):.0f} % {how} than the linear spring" if k else how
+            size = (f"{_amount(change)} {how} than the linear spring" if change >= -1.0
+                    else f"{how} than the linear spring, by {-change:.1f} times its stiffness"
+                    ) if k else how
             span = (f"beyond {1e3 * where:.0f} mm of {word} (from the unloaded ride height)"
                     if where >= 1e-3 else f"throughout {word}")
             out.append(f"the force rises {size} {span}")
@@ -405,7 +422,7 @@ def describe_shape(model: ShapeModel, r_m: np.ndarray, rdot_mps: np.ndarray,
         if hit is not None:
             where, change = hit
             how = "grows" if change > 0 else "fades"
-            size = f" by {100 * abs(change):.0f} %" if c else ""
+            size = f" by {_amount(change, 'damping')}" if c else ""
             span = f"above {where:.2g} m/s" if where >= 0.01 else "at every speed"
             out.append(f"in {side} the damping {how}{size} {span}")
     # damping that depends on where the suspension is (a position-sensitive damper)
@@ -425,7 +442,7 @@ def describe_shape(model: ShapeModel, r_m: np.ndarray, rdot_mps: np.ndarray,
         change = (damping_at(r0) - at_rest) / ref
         if abs(change) > SHAPE_CHANGE:
             how = "higher" if change > 0 else "lower"
-            out.append(f"the damping is {100 * abs(change):.0f} % {how} at {1e3 * abs(r0):.0f} "
+            out.append(f"the damping is {_changed(change, how)} at {1e3 * abs(r0):.0f} "
                        f"mm of {word} than at the unloaded ride height")
     if model.hysteretic_force_n and math.isfinite(model.yield_displacement_m):
         w = dahl_state(np.asarray(rdot_mps, float), sample_rate_hz, model.yield_displacement_m)
@@ -451,12 +468,12 @@ def _play_words(model: ShapeModel, damping_ns_per_m: float | None) -> str:
     # the departure is D rdot idle; the damper's force on the body is -c rdot: damping -D
     change = -model.play_damping_ns_per_m
     g_mm = 1e3 * model.play_half_width_m
-    if damping_ns_per_m:
-        size = f"{100 * abs(change) / abs(damping_ns_per_m):.0f} % "
-    else:
-        size = f"{abs(change):.3g} N s/m "
     how = "lower" if change < 0 else "higher"
-    return (f"the damping is {size}{how} for the first {2 * g_mm:.2g} mm of travel after each "
+    if damping_ns_per_m:
+        size = _changed(change / abs(damping_ns_per_m), how)
+    else:
+        size = f"{abs(change):.3g} N s/m {how}"
+    return (f"the damping is {size} for the first {2 * g_mm:.2g} mm of travel after each "
             f"reversal of the motion (inside a play of +-{g_mm:.2g} mm"
             + (": as a free play or a slack mounting of the damper would make it)"
                if change < 0 else ")"))

@@ -75,3 +75,22 @@ def test_noise_alone_does_not_gain_a_play():
     model = fit_shape_model(r, v, departure, held, FS_HZ)
     assert model.play_damping_ns_per_m == 0.0
     assert not any("reversal of the motion" in w for w in model.description)
+
+
+def test_a_decrease_past_the_linear_term_is_worded_as_a_multiple():
+    # a departure from a named model can turn the linear term's sign (seed 1795952177 of
+    # the independent simulator, a rubber bump stop: "the force rises 675 % softer than
+    # the linear spring"); percentages of a decrease stop at 100 %
+    from fielddiag.diagnose.shape import _changed, describe_shape
+
+    assert _changed(-0.37, "lower") == "37 % lower"
+    assert _changed(-1.92, "lower") == "lower by 1.9 times the linear damper's"
+    r, v = _travel(6)
+    held = np.zeros(r.size, bool)
+    held[r.size // 2:] = True
+    k = 20e3
+    model = fit_shape_model(r, v, 6.8 * k * r, held, FS_HZ, stiffness_n_per_m=k,
+                            damping_ns_per_m=1500.0)
+    words = describe_shape(model, r, v, FS_HZ, k, 1500.0)
+    soft = [w for w in words if "softer" in w]
+    assert soft and all("times its stiffness" in w and "%" not in w for w in soft), words
