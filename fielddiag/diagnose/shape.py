@@ -447,10 +447,11 @@ def describe_shape(model: ShapeModel, r_m: np.ndarray, rdot_mps: np.ndarray,
     if model.hysteretic_force_n and math.isfinite(model.yield_displacement_m):
         w = dahl_state(np.asarray(rdot_mps, float), sample_rate_hz, model.yield_displacement_m)
         power = abs(float(np.mean(model.hysteretic_force_n * w * rdot_mps)))
-        # dominant frequency of the travel: its zero-mean crossings per second / 2
-        rc = np.asarray(r_m, float) - np.mean(r_m)
-        crossings = np.count_nonzero(np.diff(np.signbit(rc)))
-        freq = crossings / 2.0 / (rc.size / sample_rate_hz) if rc.size else math.nan
+        # loops per second: reversals of the motion after more than twice the yield
+        # travel (the loops that close), two a cycle. Not the travel's zero crossings: a
+        # slow drift of the integrated travel left them at 0.006 Hz (seed 1795952984)
+        freq = _closed_loops_per_s(np.asarray(r_m, float), np.asarray(rdot_mps, float),
+                                   sample_rate_hz, 2.0 * model.yield_displacement_m)
         if freq > 0:
             out.append(f"a hysteresis loop of {power / freq:.3g} J per cycle at {freq:.2g} Hz "
                        f"(the force lags the travel by about {1e3 * model.yield_displacement_m:.2g}"
@@ -461,6 +462,18 @@ def describe_shape(model: ShapeModel, r_m: np.ndarray, rdot_mps: np.ndarray,
         out.append("the force departs from the linear spring and damper without a simple "
                    "trend in travel or speed; see the departure map")
     return out
+
+
+def _closed_loops_per_s(r_m: np.ndarray, rdot_mps: np.ndarray, sample_rate_hz: float,
+                        min_travel_m: float) -> float:
+    """Cycles per second of the motion's reversals that follow more than
+    ``min_travel_m`` of travel (two reversals a cycle)."""
+    if r_m.size < 2:
+        return math.nan
+    turns = np.flatnonzero(np.diff(np.signbit(rdot_mps))) + 1
+    travel = np.abs(travel_since_reversal(r_m, rdot_mps))
+    closed = np.count_nonzero(travel[turns - 1] > min_travel_m)
+    return closed / 2.0 / (r_m.size / sample_rate_hz)
 
 
 def _play_words(model: ShapeModel, damping_ns_per_m: float | None) -> str:

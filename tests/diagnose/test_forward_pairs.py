@@ -25,8 +25,15 @@ def test_weak_asymmetric_damping_beside_friction_is_not_a_digressive_damper():
     assert case.family == "asymmetric_damping + dahl_friction"
     diag = diagnose_drives(rc.case_drives(case))
     out = diag.to_dict()
-    assert [f["effect"] for f in out["findings"]] == [
-        "coulomb_friction", "asymmetric_damping"], out["findings"]
+    named = [f["effect"] for f in out["findings"]]
+    assert named[:2] == ["coulomb_friction", "asymmetric_damping"], out["findings"]
+    # since session 45 what Coulomb friction leaves of Dahl friction's pre-yield loop (the
+    # structure over the travel since each reversal, 17 % of the residual, 3.1 % of the
+    # linear model's misfit) is told after them, as a hysteresis loop, never before
+    if named[2:]:
+        assert named[2:] == ["unexplained"], named
+        (left,) = [f for f in out["findings"] if f["effect"] == "unexplained"]
+        assert any("hysteresis loop" in w for w in left["shape_description"])
     found = {f["effect"]: f["parameters"] for f in out["findings"]}
     truth = dict(case.effects)
     assert found["coulomb_friction"]["friction_force_n"] == pytest.approx(

@@ -10,6 +10,7 @@ linear car (seed 100 of benchmarks/random_cases.py, 244 Hz), 60 s drives.
 
 from __future__ import annotations
 
+import math
 import re
 import sys
 from dataclasses import replace
@@ -108,11 +109,20 @@ def test_the_lag_of_dry_friction_is_not_told_as_a_late_channel():
     m = re.search(r"\(\+([\d.]+) \+- [\d.]+ ms\) fits the residual's phase, but above "
                   r"([\d.]+) Hz, where a late channel shows in full, the recording's channels "
                   r"are ([+-][\d.]+) ms apart", note)
-    assert m, note
-    delay_ms, middle_hz, seen_ms = float(m[1]), float(m[2]), float(m[3])
-    assert delay_ms > 1.0 and abs(seen_ms) < 0.5 * delay_ms
-    band = out["band_hz"]
-    assert middle_hz == pytest.approx((band[0] * band[1]) ** 0.5, abs=0.05)
+    if m:
+        delay_ms, middle_hz, seen_ms = float(m[1]), float(m[2]), float(m[3])
+        assert delay_ms > 1.0 and abs(seen_ms) < 0.5 * delay_ms
+        band = out["band_hz"]
+        assert middle_hz == pytest.approx((band[0] * band[1]) ** 0.5, abs=0.05)
+    else:
+        # since session 45 the delay beside friction + a mount is refined against the
+        # friction to its own std (+0.24 +- 0.06 ms): then the quieter and livelier halves
+        # tell it apart (0.74 and 0.15 ms): a lag that changes with amplitude
+        m = re.search(r"([+-][\d.]+) \+- ([\d.]+) ms apart in its quieter half and "
+                      r"([+-][\d.]+) \+- ([\d.]+) ms in its livelier half", note)
+        assert m, note
+        quiet, lively = float(m[1]), float(m[3])
+        assert quiet - lively > 2 * math.hypot(float(m[2]), float(m[4]))
     # the tie with a top mount it was kept as is withdrawn, not left saying the findings
     # assume a late channel
     assert not any("time offset" in w["message"] for w in out["warnings"]
@@ -268,3 +278,25 @@ def test_the_lag_of_dahl_friction_that_shrinks_with_amplitude_is_not_a_late_chan
     assert m, note
     quiet, quiet_std, lively, lively_std = (float(x) for x in m.groups())
     assert quiet - lively > 2 * np.hypot(quiet_std, lively_std)
+
+
+@pytest.mark.timeout(900)
+def test_a_late_channel_beside_friction_competes_with_a_mount_at_its_own_precision():
+    # the randomized generator's seed 1795953005 (60 s drives): 280 N of Coulomb friction
+    # and a body channel 1.33 ms late. Friction + a top mount was chosen; the delay beside
+    # the friction was held at its first estimate, 1.66 +- 0.79 ms (a transmissibility's
+    # phase), where it predicted worse than the mount, whose stiffness is fitted freely, and
+    # the mount was named with no word of the delay. Refined against the friction to its
+    # own least-squares std, the delay (1.15 ms) and the mount explain the held-out data
+    # alike: told so, the findings assuming the delay
+    case = rc.draw_case(1795953005, duration_s=60.0, families=rc.PINNED_FAMILIES)
+    (late,) = [n for n in case.nuisances if n["kind"] == "time_offset"]
+    out = diagnose_drives(rc.case_drives(case)).to_dict()
+    named = [f["effect"] for f in out["findings"]]
+    assert named[0] == "coulomb_friction" and "series_top_mount" not in named, named
+    (tie,) = [w["message"] for w in out["warnings"] if w["kind"] == "data_problem_or_physics"]
+    m = re.search(r"a time offset between the wheel and body channels \(\+([\d.]+) \+- "
+                  r"([\d.]+) ms\) and a series top mount explain the held-out data", tie)
+    assert m, tie
+    assert float(m[1]) == pytest.approx(1e3 * late["value"], abs=0.3)
+    assert float(m[2]) < 0.1
