@@ -1217,14 +1217,6 @@ def _unexplained(
                                 "linear_spring.suspension_stiffness_n_per_m"),
                             damping_ns_per_m=vals.get(
                                 "linear_damper.suspension_damping_ns_per_m"))
-    if reason is None and not shape.held_out_gain > 0.0:
-        # the finding is the model of the force left, and it must predict held-out data:
-        # a map's coarse bins can catch what no smooth shape carries over (the independent
-        # simulator's linear car 1795956848: 8.4 % of the residual at t = 4.5, the shape
-        # model's held-out gain -3 %, "the damping fades by 19 % above 0.85 m/s")
-        say(f"  a smooth model of it predicts none of the held-out force left (gain "
-            f"{100 * shape.held_out_gain:.0f} %): not reported")
-        return None, full_map
     unit = "N" if "body_mass_kg" in vals else "N/kg"
     words = "; ".join(shape.description)
     if reason is not None:
