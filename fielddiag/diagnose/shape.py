@@ -339,19 +339,18 @@ def fit_shape_model(
     return model
 
 
-def _amount(change: float, of: str = "stiffness") -> str:
-    """A relative change in words: a percentage, or, where a decrease passes 100 % (the
-    departure turns the linear term's sign: a departure from a named model may), a
-    multiple of the linear spring's or damper's own value."""
+def _amount(change: float) -> str:
+    """A relative change of the damping in words: a percentage, or, where a decrease
+    passes 100 % (the departure turns the linear term's sign: a departure from a named
+    model may), a multiple of the linear damper's own value."""
     if change >= -1.0:
         return f"{100 * abs(change):.0f} %"
-    return f"{-change:.1f} times the linear {'spring' if of == 'stiffness' else 'damper'}'s"
+    return f"{-change:.1f} times the linear damper's"
 
 
 def _changed(change: float, how: str) -> str:
     """``37 % lower``, or ``lower by 1.9 times the linear damper's`` (:func:`_amount`)."""
-    return (f"{_amount(change, 'damping')} {how}" if change >= -1.0
-            else f"{how} by {_amount(change, 'damping')}")
+    return f"{_amount(change)} {how}" if change >= -1.0 else f"{how} by {_amount(change)}"
 
 
 def _first_beyond(x: np.ndarray, change: np.ndarray) -> tuple[float, float] | None:
@@ -404,7 +403,8 @@ def describe_shape(model: ShapeModel, r_m: np.ndarray, rdot_mps: np.ndarray,
         if hit is not None:
             where, change = hit
             how = "steeper" if change > 0 else "softer"
-            size = (f"{_amount(change)} {how} than the linear spring" if change >= -1.0
+            size = (f"{100 * abs(change):.0f} % {how} than the linear spring"
+                    if change >= -1.0
                     else f"{how} than the linear spring, by {-change:.1f} times its stiffness"
                     ) if k else how
             span = (f"beyond {1e3 * where:.0f} mm of {word} (from the unloaded ride height)"
@@ -422,7 +422,7 @@ def describe_shape(model: ShapeModel, r_m: np.ndarray, rdot_mps: np.ndarray,
         if hit is not None:
             where, change = hit
             how = "grows" if change > 0 else "fades"
-            size = f" by {_amount(change, 'damping')}" if c else ""
+            size = f" by {_amount(change)}" if c else ""
             span = f"above {where:.2g} m/s" if where >= 0.01 else "at every speed"
             out.append(f"in {side} the damping {how}{size} {span}")
     # damping that depends on where the suspension is (a position-sensitive damper)
