@@ -243,6 +243,10 @@ def summary(rows: list[dict]) -> list[str]:
         f"{_pct(sum(r['nuisances']['gain_change']['reported'] for r in gain), len(gain))}",
         f"  time offset >= 1 ms reported (>= 90 %)           "
         f"{_pct(sum(r['nuisances']['time_offset']['reported'] for r in off), len(off))}",
+        f"  ... of them with the right size (within 25 %)    "
+        f"{_pct(sum(bool(r['nuisances']['time_offset'].get('size_right')) for r in off), len(off))}",  # noqa: E501
+        f"  gain change >= 1 % with the right size           "
+        f"{_pct(sum(bool(r['nuisances']['gain_change'].get('size_right')) for r in gain), len(gain))}",  # noqa: E501
         f"  gain change invented (<= 5 %)                    "
         f"{_pct(sum(r['nuisances']['gain_change']['reported'] for r in inv['gain_change']), len(inv['gain_change']))}",  # noqa: E501
         f"  time offset invented (<= 5 %)                    "

@@ -56,6 +56,44 @@ def data_problems_reported(out: dict[str, Any]) -> set[str]:
     return {k for k in map(data_problem_kind, names) if k is not None}
 
 
+#: A reported data problem has the right size when it is within this share of the truth
+#: (or :data:`SIZE_FLOOR`, whichever is larger) with the right sign: a late channel
+#: reported at three times its delay (the delay taking up a top mount's lag beside it) is
+#: reported, but not rightly.
+SIZE_TOLERANCE = 0.25
+SIZE_FLOOR = {"gain_change": 0.005, "time_offset": 0.25e-3}
+
+
+def expected_value(nuisance: dict[str, Any]) -> float | None:
+    """What the diagnosis's warning should say for a true ``nuisance``: a time offset as
+    the body channel's delay [s] (negative where the wheel channel lags), a gain change as
+    the 'after' drive's body/wheel gain ratio less one. None for other kinds."""
+    v, ch = float(nuisance["value"]), nuisance.get("channel")
+    if nuisance["kind"] == "time_offset":
+        return v if ch == "body" else -v
+    if nuisance["kind"] == "gain_change":
+        return v if ch == "body" else 1.0 / (1.0 + v) - 1.0
+    return None
+
+
+def reported_value(out: dict[str, Any], kind: str) -> float | None:
+    """The size the diagnosis's first warning of ``kind`` carries (None: none reported,
+    or a JSON written before warnings carried their size)."""
+    for w in out.get("warnings", []):
+        if data_problem_kind(w.get("kind", "")) == kind and w.get("value") is not None:
+            return float(w["value"])
+    return None
+
+
+def size_right(nuisance: dict[str, Any], reported: float | None) -> bool:
+    """Whether ``reported`` is the size of ``nuisance`` (:data:`SIZE_TOLERANCE`)."""
+    want = expected_value(nuisance)
+    if want is None or reported is None:
+        return False
+    tol = max(SIZE_TOLERANCE * abs(want), SIZE_FLOOR.get(nuisance["kind"], 0.0))
+    return abs(reported - want) <= tol
+
+
 #: Words by which a ``data_problem_or_physics`` note (a data problem and physics that
 #: predict alike) names each data problem.
 _UNDECIDED_WORDS = {"gain_change": "gain", "time_offset": "time offset"}
@@ -269,12 +307,15 @@ def score_case(case: Any, out: dict[str, Any], floor_nrmse: float | None,
     nuis = {}
     for kind in DATA_PROBLEM_NAMES:
         n = truth_kinds.get(kind)
+        rep = reported_value(out, kind) if kind in reported else None
         nuis[kind] = {
             "present": n is not None,
             "value": None if n is None else n["value"],
             "must_report": n is not None and abs(n["value"]) >= REPORT_FROM.get(kind, 0.0),
             "reported": kind in reported,
             "undecided": kind in undecided,
+            "value_reported": rep,
+            "size_right": n is not None and kind in reported and size_right(n, rep),
         }
     top1 = right_first(named, effects, library) if effects else None
     rh = ride_height_reported(out)

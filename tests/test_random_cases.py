@@ -288,8 +288,27 @@ def test_a_tie_with_physics_is_told_neither_reported_nor_invented() -> None:
     row = rs.score_case(case, tied, None, ("series_top_mount",))
     assert row["nuisances"]["time_offset"] == {"present": False, "value": None,
                                                "must_report": False, "reported": False,
-                                               "undecided": True}
+                                               "undecided": True,
+                                               "value_reported": None, "size_right": False}
     assert not row["nuisances"]["gain_change"]["undecided"]
+
+
+def test_a_data_problem_is_reported_rightly_only_at_its_size_and_sign() -> None:
+    late_body = {"kind": "time_offset", "channel": "body", "value": 2.74e-3}
+    late_wheel = {"kind": "time_offset", "channel": "wheel", "value": 2.57e-3}
+    # the warning carries the body channel's delay: negative where the wheel lags
+    assert rs.size_right(late_body, 2.9e-3) and rs.size_right(late_wheel, -2.3e-3)
+    assert not rs.size_right(late_wheel, +2.57e-3)  # the wrong channel
+    assert not rs.size_right(late_body, 8.25e-3)  # a top mount's lag taken up beside it
+    assert rs.size_right({"kind": "time_offset", "channel": "body", "value": 1.0e-3},
+                         1.24e-3)  # within the 0.25 ms floor
+    # a gain change of the 'after' drive, read as its body/wheel gain ratio less one
+    wheel_gain = {"kind": "gain_change", "channel": "wheel", "value": 0.04}
+    assert rs.expected_value(wheel_gain) == pytest.approx(1 / 1.04 - 1)
+    assert rs.size_right(wheel_gain, -0.037) and not rs.size_right(wheel_gain, 0.04)
+    out = {"warnings": [{"kind": "channel_time_offset", "message": "...", "value": 2.9e-3}]}
+    assert rs.reported_value(out, "time_offset") == pytest.approx(2.9e-3)
+    assert rs.reported_value(out, "gain_change") is None
 
 
 def test_the_tests_pinned_families_are_the_registrys():

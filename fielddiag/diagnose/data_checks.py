@@ -43,9 +43,18 @@ class DataWarning:
         Returns
         -------
         dict
-            ``{"kind", "message"}``.
+            ``{"kind", "message"}``, with ``session``, ``channel`` and ``value`` where
+            set (the measured size, in the unit :class:`DataWarning` gives: a program
+            reading the JSON needs the number, not the sentence).
         """
-        return {"kind": self.kind, "message": self.message}
+        out: dict = {"kind": self.kind, "message": self.message}
+        if self.session:
+            out["session"] = self.session
+        if self.channel:
+            out["channel"] = self.channel
+        if self.value is not None:
+            out["value"] = float(self.value)
+        return out
 
 
 def clipped_mask(values: np.ndarray, *, min_run: int = 3) -> np.ndarray:

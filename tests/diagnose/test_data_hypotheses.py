@@ -216,3 +216,13 @@ def test_a_late_channel_that_physics_predicts_as_well_is_not_decisive():
     # without physics that improves on the linear model, as before
     chosen, note = _decisive_data_problem(linear, [linear, delayed, fit(("bouc_wen",), 1.01)])
     assert chosen is delayed and note is None
+
+
+def test_a_data_problem_warning_carries_its_size_in_the_json():
+    # a program reading the diagnosis's JSON needs the number, not only the sentence
+    late = data_checks.time_offset_warning(-2.5e-3, 0.1e-3).to_dict()
+    assert late["kind"] == "channel_time_offset" and late["value"] == pytest.approx(-2.5e-3)
+    assert "wheel channel lags the other by 2.50 +- 0.10 ms" in late["message"]
+    gain = data_checks.gain_warning("before", "after", 0.031, 0.004).to_dict()
+    assert gain["value"] == pytest.approx(0.031) and gain["session"] == "after"
+    assert set(data_checks.DataWarning("clipping", "clips").to_dict()) == {"kind", "message"}
