@@ -474,3 +474,23 @@ def test_the_sprung_mass_stays_within_its_bounds() -> None:
     assert res.body_mass_kg == pytest.approx(200.0, rel=1e-3)  # the truth (380) is outside
     with pytest.raises(FieldDiagError, match="mass_bounds_kg"):
         GreyBoxProblem(linear_model(), data, mass_bounds_kg=(200.0, 100.0))
+
+
+class _TailingForce:
+    """A net static force of rounding size at r = 0 that decays to subnormal numbers
+    further out, never crossing zero (a pure numeric input of ``static_equilibrium``)."""
+
+    def static_force(self, r, _x, _theta):
+        return 5e-26 * np.exp(-1000.0 * abs(r))
+
+    def static_states(self, _r, _theta):
+        return np.zeros(0)
+
+
+def test_static_equilibrium_never_takes_underflowing_products_for_a_sign_change() -> None:
+    # 5e-26 N times 1e-310 N is 0: the bracket's product test took it for a crossing and
+    # Brent's method raised (seed 1795963951 of the random benchmark, a bump stop's fit)
+    from fielddiag.identify.greybox_sensitivities import static_equilibrium
+
+    x, states = static_equilibrium(_TailingForce(), np.zeros(1), 0.0036, 0.0)
+    assert x == pytest.approx(0.0036) and states.size == 0
