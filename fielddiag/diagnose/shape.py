@@ -28,6 +28,8 @@ import numpy as np
 from numba import njit
 from scipy.interpolate import BSpline
 
+from fielddiag.diagnose.selection import paired_block_t
+
 __all__ = ["ShapeModel", "describe_shape", "fit_shape_model", "travel_since_reversal"]
 
 #: Interior knots per axis of the spline surface (cubic: knots + 4 basis functions).
@@ -147,6 +149,9 @@ class ShapeModel:
         Its yield travel [m].
     held_out_gain : float
         ``1 - mse(held-out departure - model) / mse(held-out departure)``.
+    held_out_t : float
+        Paired-block t of that gain (:func:`~fielddiag.diagnose.selection.paired_block_t`:
+        the model's held-out error against none).
     description : list of str
         The shape in words (:func:`describe_shape`).
     """
@@ -160,6 +165,7 @@ class ShapeModel:
     description: list[str] = field(default_factory=list)
     play_half_width_m: float = math.nan
     play_damping_ns_per_m: float = 0.0
+    held_out_t: float = math.nan
 
     def surface(self, r_m: np.ndarray, rdot_mps: np.ndarray) -> np.ndarray:
         """The memoryless part ``S(r, rdot)`` [N] at the given points.
@@ -194,6 +200,7 @@ class ShapeModel:
             "hysteretic_force_n": self.hysteretic_force_n,
             "yield_displacement_m": self.yield_displacement_m,
             "held_out_gain": self.held_out_gain,
+            "held_out_t": self.held_out_t,
             "play_half_width_m": self.play_half_width_m,
             "play_damping_ns_per_m": self.play_damping_ns_per_m,
             "description": list(self.description),
@@ -314,26 +321,33 @@ def fit_shape_model(
         return 1.0 - float(np.mean(e**2) / max(np.mean(ref**2), 1e-300)), coef
 
     best_gain, best_coef = score(base)
+    best_a, best_full = base, best_coef
     best_yield, best_fh = math.nan, 0.0
     best_w = np.zeros((r.size, 0))
     for xy in YIELD_GRID_M:
         w = dahl_state(v, sample_rate_hz, xy, segments)
-        gain, coef = score(np.column_stack([base, w]))
+        a = np.column_stack([base, w])
+        gain, coef = score(a)
         if gain > best_gain + 0.01:  # the state must earn its column
             best_gain, best_coef, best_yield, best_fh = gain, coef[:-1], xy, float(coef[-1])
-            best_w = w[:, None]
+            best_w, best_a, best_full = w[:, None], a, coef
     # damping idle inside a play: the speed where a backlash of half-width g stands still
     play_g, play_d = math.nan, 0.0
     for g in PLAY_GRID_M:
         idle = v * play_idle(r, g, segments)
-        gain, coef = score(np.column_stack([base, best_w, idle]))
+        a = np.column_stack([base, best_w, idle])
+        gain, coef = score(a)
         if gain > best_gain + 0.01:  # the state must earn its column
             best_gain, best_coef, play_g, play_d = gain, coef[:base.shape[1]], g, float(coef[-1])
+            best_a, best_full = a, coef
             if best_w.shape[1]:
                 best_fh = float(coef[base.shape[1]])
+    # ... and how surely: the paired-block t of its held-out prediction against none (the
+    # departure map's own test, here on the model that is the finding)
+    t = paired_block_t(y0[held] - np.mean(y0[held]), y0[held] - best_a[held] @ best_full)
     model = ShapeModel(kr, kv, best_coef.reshape(kr.size + 2, kv.size + 2), best_fh,
                        best_yield, best_gain, play_half_width_m=play_g,
-                       play_damping_ns_per_m=play_d)
+                       play_damping_ns_per_m=play_d, held_out_t=float(t))
     model.description = describe_shape(model, r[fit], v[fit], sample_rate_hz,
                                        stiffness_n_per_m, damping_ns_per_m)
     return model

@@ -62,7 +62,7 @@ def test_a_damper_idle_inside_a_play_is_found_and_worded():
                             damping_ns_per_m=c)
     assert model.play_half_width_m == 2e-3
     assert model.play_damping_ns_per_m == pytest.approx(c, rel=0.1)
-    assert model.held_out_gain > 0.5
+    assert model.held_out_gain > 0.5 and model.held_out_t > 10.0
     words = [w for w in model.description if "reversal of the motion" in w]
     assert words and "lower for the first 4 mm" in words[0] and "free play" in words[0]
 
@@ -75,6 +75,8 @@ def test_noise_alone_does_not_gain_a_play():
     model = fit_shape_model(r, v, departure, held, FS_HZ)
     assert model.play_damping_ns_per_m == 0.0
     assert not any("reversal of the motion" in w for w in model.description)
+    # nothing held out is predicted surely (the diagnosis asks t >= 4 of the finding)
+    assert model.held_out_gain < 0.01 and model.held_out_t < 2.0
 
 
 def test_a_decrease_past_the_linear_term_is_worded_as_a_multiple():
