@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import importlib
 import math
+import threading
 import time
 import urllib.parse
 from abc import ABC, abstractmethod
@@ -251,6 +252,43 @@ class ClockSync:
         corr = min(max(err / self.slew_time_s, -self.max_slew), self.max_slew)
         self._anchor = (tau, cur)
         self._rate = 1.0 + self._slope + corr
+
+
+class RateWindow:
+    """Items received per second over the last few seconds, for a source's status.
+
+    The reading thread adds while the recorder's thread reads the rate: both hold a lock
+    (a deque iterated while another thread appends raises "deque mutated during
+    iteration": it stopped a demo recording once, from the CAN source's status).
+
+    Parameters
+    ----------
+    span_s : float
+        How far back the rate is read [s].
+    maxlen : int
+        How many arrivals are kept at most.
+    """
+
+    def __init__(self, span_s: float = 5.0, maxlen: int = 200) -> None:
+        self.span_s = span_s
+        self._arrivals: deque[tuple[float, int]] = deque(maxlen=maxlen)
+        self._lock = threading.Lock()
+
+    def add(self, n: int) -> None:
+        """``n`` items arrived now."""
+        with self._lock:
+            self._arrivals.append((time.monotonic(), n))
+
+    def rate_per_s(self) -> float | None:
+        """Items per second over the arrivals within :attr:`span_s` (the first one's
+        items not counted: they arrived before the span began); None with fewer than two.
+        """
+        now = time.monotonic()
+        with self._lock:
+            win = [(t, n) for t, n in self._arrivals if now - t < self.span_s]
+        if len(win) < 2 or win[-1][0] <= win[0][0]:
+            return None
+        return sum(n for _, n in win[1:]) / (win[-1][0] - win[0][0])
 
 
 # ------------------------------------------------------------------------------ URLs

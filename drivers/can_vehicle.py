@@ -39,7 +39,15 @@ from typing import Any
 
 import numpy as np
 
-from drivers.base import Block, Event, SignalSpec, Source, SourceURL, parse_source_url
+from drivers.base import (
+    Block,
+    Event,
+    RateWindow,
+    SignalSpec,
+    Source,
+    SourceURL,
+    parse_source_url,
+)
 from drivers.can_decode import (
     BUS_RULE,
     BusTable,
@@ -134,7 +142,7 @@ class _CanSource(Source):
         self.decoder: CanDecoder | None = None
         self.frames_received = 0
         self._bus_table = BusTable()
-        self._rate_window: deque[tuple[float, int]] = deque(maxlen=200)
+        self._rate_window = RateWindow()
         self._last_values: dict[str, float] = {}
 
     @staticmethod
@@ -178,7 +186,7 @@ class _CanSource(Source):
         for k, (_, v) in signals.items():
             self._last_values[k] = float(v[-1])
         self.frames_received += len(msgs)
-        self._rate_window.append((time.monotonic(), len(msgs)))
+        self._rate_window.add(len(msgs))
         return Block(signals=signals, can_frames=frames)
 
     def counters(self) -> dict[str, int]:
@@ -187,20 +195,13 @@ class _CanSource(Source):
             "can_decode_errors": self.decoder.errors if self.decoder else 0,
         }
 
-    def _frame_rate(self) -> float | None:
-        now = time.monotonic()
-        win = [(t, n) for t, n in self._rate_window if now - t < 5.0]
-        if len(win) < 2 or win[-1][0] <= win[0][0]:
-            return None
-        return sum(n for _, n in win[1:]) / (win[-1][0] - win[0][0])
-
     def status(self) -> dict[str, Any]:
         return {
             "url": self.url,
             "kind": self.kind,
             "connected": self.connected,
             "finished": self.finished,
-            "frame_rate_hz": self._frame_rate(),
+            "frame_rate_hz": self._rate_window.rate_per_s(),
             "last_values": dict(self._last_values),
             "last_error": self.last_error,
             **self.counters(),

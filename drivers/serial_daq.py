@@ -59,7 +59,15 @@ import numpy as np
 import serial
 import serial.tools.list_ports
 
-from drivers.base import Block, ChannelSpec, Event, Gap, Source, parse_source_url
+from drivers.base import (
+    Block,
+    ChannelSpec,
+    Event,
+    Gap,
+    RateWindow,
+    Source,
+    parse_source_url,
+)
 from drivers.clock_fit import DeviceClockFit
 from drivers.protocol import (
     CMD_INFO,
@@ -446,7 +454,7 @@ class SerialDAQSource(_SerialPortSource):
         self._epochs = 0
         #: Set to a list to log the sequence number of every frame received (tests, tools).
         self.seq_log: list[int] | None = None
-        self._rate_window: list[tuple[float, int]] = []
+        self._rate_window = RateWindow()
 
     @classmethod
     def from_url(cls, url: str) -> SerialDAQSource:
@@ -584,12 +592,7 @@ class SerialDAQSource(_SerialPortSource):
 
     def status(self) -> dict[str, Any]:
         st = self._base_status()
-        now = time.monotonic()
-        win = [(t, n) for t, n in self._rate_window if now - t < 5.0]
-        self._rate_window = win
-        rate = None
-        if len(win) >= 2 and win[-1][0] > win[0][0]:
-            rate = sum(n for _, n in win[1:]) / (win[-1][0] - win[0][0])
+        rate = self._rate_window.rate_per_s()
         c = self._parser.counters
         st.update(self.counters())
         st.update(
@@ -755,7 +758,7 @@ class SerialDAQSource(_SerialPortSource):
             if self.seq_log is not None:
                 self.seq_log.append(f.seq)
         self._emit(seg, marks, out_t, out_s, gaps)
-        self._rate_window.append((time.monotonic(), sum(len(t) for t in out_t)))
+        self._rate_window.add(sum(len(t) for t in out_t))
         samples = np.frombuffer(b"".join(out_s), dtype=self.info.dtype).reshape(
             -1, self.info.n_channels
         )
