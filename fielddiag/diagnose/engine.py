@@ -1872,8 +1872,9 @@ def _diagnose(
         delays the damper's force only, and a late channel every force, so a mount fitted
         to the drives as recorded leaves a late channel beside it in part (1.0 ms of a
         2.74 ms late body channel, seed 1795955142; none where no channel is late). The
-        steps then start from the drives as recorded: from the first estimate they settle
-        where the delay takes up the mount's lag too (8.7 ms there, the mount gone soft)."""
+        steps then start from the drives as recorded, by their own std: from the first
+        estimate they settle where the delay takes up the mount's lag too (8.7 ms there,
+        the mount gone soft)."""
         against = against or physics_fit
         phys = tuple(e for e in against.physics
                      if with_twins or hyp.kind not in EFFECTS[e].data_twins)
@@ -2085,8 +2086,7 @@ def _diagnose(
                 # the delay the mount fitted to the drives as recorded leaves beside it:
                 # the channel is late by more than the mount's lag can take (a mount and a
                 # late channel together, the delay estimated first took up both)
-                beside = delay_against_physics(hyp, physics_fit, own_std=True,
-                                               with_twins=True)
+                beside = delay_against_physics(hyp, physics_fit, with_twins=True)
                 if beside is not None:
                     say(f"testing a {_DATA_LABEL[hyp.kind]} ({_data_size(beside[0])}) "
                         f"beside {' + '.join(physics_fit.physics)}")

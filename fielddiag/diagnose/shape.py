@@ -320,34 +320,35 @@ def fit_shape_model(
         ref = y0[held] - np.mean(y0[held])
         return 1.0 - float(np.mean(e**2) / max(np.mean(ref**2), 1e-300)), coef
 
+    # the best design (its columns: the surface, then the states kept) and its fit
     best_gain, best_coef = score(base)
-    best_a, best_full = base, best_coef
-    best_yield, best_fh = math.nan, 0.0
+    best_a = base
+    best_yield = math.nan
     best_w = np.zeros((r.size, 0))
     for xy in YIELD_GRID_M:
         w = dahl_state(v, sample_rate_hz, xy, segments)
         a = np.column_stack([base, w])
         gain, coef = score(a)
         if gain > best_gain + 0.01:  # the state must earn its column
-            best_gain, best_coef, best_yield, best_fh = gain, coef[:-1], xy, float(coef[-1])
-            best_w, best_a, best_full = w[:, None], a, coef
+            best_gain, best_coef, best_a, best_yield, best_w = gain, coef, a, xy, w[:, None]
     # damping idle inside a play: the speed where a backlash of half-width g stands still
-    play_g, play_d = math.nan, 0.0
+    play_g = math.nan
     for g in PLAY_GRID_M:
         idle = v * play_idle(r, g, segments)
         a = np.column_stack([base, best_w, idle])
         gain, coef = score(a)
         if gain > best_gain + 0.01:  # the state must earn its column
-            best_gain, best_coef, play_g, play_d = gain, coef[:base.shape[1]], g, float(coef[-1])
-            best_a, best_full = a, coef
-            if best_w.shape[1]:
-                best_fh = float(coef[base.shape[1]])
+            best_gain, best_coef, best_a, play_g = gain, coef, a, g
     # ... and how surely: the paired-block t of its held-out prediction against none (the
     # departure map's own test, here on the model that is the finding)
-    t = paired_block_t(y0[held] - np.mean(y0[held]), y0[held] - best_a[held] @ best_full)
-    model = ShapeModel(kr, kv, best_coef.reshape(kr.size + 2, kv.size + 2), best_fh,
-                       best_yield, best_gain, play_half_width_m=play_g,
-                       play_damping_ns_per_m=play_d, held_out_t=float(t))
+    t = paired_block_t(y0[held] - np.mean(y0[held]), y0[held] - best_a[held] @ best_coef)
+    n_surface = base.shape[1]
+    model = ShapeModel(
+        kr, kv, best_coef[:n_surface].reshape(kr.size + 2, kv.size + 2),
+        float(best_coef[n_surface]) if best_w.shape[1] else 0.0, best_yield, best_gain,
+        play_half_width_m=play_g,
+        play_damping_ns_per_m=float(best_coef[-1]) if np.isfinite(play_g) else 0.0,
+        held_out_t=float(t))
     model.description = describe_shape(model, r[fit], v[fit], sample_rate_hz,
                                        stiffness_n_per_m, damping_ns_per_m)
     return model
