@@ -315,7 +315,7 @@ def score_case(case: Any, out: dict[str, Any], floor_nrmse: float | None,
             "reported": kind in reported,
             "undecided": kind in undecided,
             "value_reported": rep,
-            "size_right": n is not None and kind in reported and size_right(n, rep),
+            "size_right": n is not None and size_right(n, rep),
         }
     top1 = right_first(named, effects, library) if effects else None
     rh = ride_height_reported(out)
