@@ -1926,7 +1926,15 @@ def _diagnose(
                 std = min(hyp.std, seen_std)
             step = _delay_step_s(refined.value, seen, last)
             last = (refined.value, seen)
-            if abs(step) <= (2.0 if i == 0 else DELAY_REFINED_STD) * std:
+            # the physics on the drives as recorded sees the delay elsewhere than the first
+            # estimate: the steps go on to where the physics sees none, though the first
+            # is small (1.96 ms late wheel channel beside Coulomb friction, seed
+            # 1795968869: measured 2.87 ms against the linear model, the friction on the
+            # recorded drives sees 1.96 and on the corrected drives 0.48 ms, within two
+            # std of the first; the steps settle at 2.31 ms)
+            disputed = (i == 0 and recorded is not None and not with_twins
+                        and abs(seen0 - hyp.value) > 2.0 * std)
+            if abs(step) <= (2.0 if i == 0 else DELAY_REFINED_STD) * std and not disputed:
                 # (at once within two std of the linear model's estimate: the same)
                 break
             refined = replace(refined, value=refined.value + step, std=std,
