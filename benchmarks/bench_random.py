@@ -220,6 +220,14 @@ def ride_height_table(rows: list[dict]) -> list[str]:
     return out
 
 
+def _sized_or_assumed(row: dict, kind: str) -> bool:
+    """The data problem reported at the right size, or told tied with physics that looks
+    like it while the findings assume it at the right size (the user is told its size and
+    that physics would explain it as well)."""
+    n = row["nuisances"][kind]
+    return bool(n.get("size_right") or (n.get("undecided") and n.get("assumed_size_right")))
+
+
 def summary(rows: list[dict]) -> list[str]:
     lin = [r for r in rows if r["family"] == "linear"]
     named = [r for r in rows if r["family"] != "linear"
@@ -245,6 +253,8 @@ def summary(rows: list[dict]) -> list[str]:
         f"{_pct(sum(r['nuisances']['time_offset']['reported'] for r in off), len(off))}",
         f"  ... of them with the right size (within 25 %)    "
         f"{_pct(sum(bool(r['nuisances']['time_offset'].get('size_right')) for r in off), len(off))}",  # noqa: E501
+        f"  ... reported, or told tied with physics and assumed, at the right size "
+        f"{_pct(sum(_sized_or_assumed(r, 'time_offset') for r in off), len(off))}",
         f"  gain change >= 1 % with the right size           "
         f"{_pct(sum(bool(r['nuisances']['gain_change'].get('size_right')) for r in gain), len(gain))}",  # noqa: E501
         f"  gain change invented (<= 5 %)                    "

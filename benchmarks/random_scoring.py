@@ -304,6 +304,9 @@ def score_case(case: Any, out: dict[str, Any], floor_nrmse: float | None,
     reported = data_problems_reported(out)
     undecided = data_problems_undecided(out)
     truth_kinds = {n["kind"]: n for n in case.nuisances}
+    # told tied with physics, the findings assuming the data problem at this size
+    assumed = {data_problem_kind(h.get("kind", "")): float(h["value"])
+               for h in out.get("data_problems", []) if h.get("undecided")}
     nuis = {}
     for kind in DATA_PROBLEM_NAMES:
         n = truth_kinds.get(kind)
@@ -316,6 +319,8 @@ def score_case(case: Any, out: dict[str, Any], floor_nrmse: float | None,
             "undecided": kind in undecided,
             "value_reported": rep,
             "size_right": n is not None and size_right(n, rep),
+            "value_assumed": assumed.get(kind),
+            "assumed_size_right": n is not None and size_right(n, assumed.get(kind)),
         }
     top1 = right_first(named, effects, library) if effects else None
     rh = ride_height_reported(out)

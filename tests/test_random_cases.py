@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import math
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -289,8 +290,18 @@ def test_a_tie_with_physics_is_told_neither_reported_nor_invented() -> None:
     assert row["nuisances"]["time_offset"] == {"present": False, "value": None,
                                                "must_report": False, "reported": False,
                                                "undecided": True,
-                                               "value_reported": None, "size_right": False}
+                                               "value_reported": None, "size_right": False,
+                                               "value_assumed": None,
+                                               "assumed_size_right": False}
     assert not row["nuisances"]["gain_change"]["undecided"]
+    # the findings assuming the delay tied with a mount: its size is scored apart
+    late = replace(case, nuisances=({"kind": "time_offset", "channel": "body",
+                                     "session": "both", "value": 2.22e-3},))
+    assumed = {**tied, "data_problems": [{"kind": "channel_time_offset", "value": 2.25e-3,
+                                          "std": 6e-5, "undecided": True}]}
+    off = rs.score_case(late, assumed, None, ("series_top_mount",))["nuisances"]["time_offset"]
+    assert not off["reported"] and off["undecided"]
+    assert off["value_assumed"] == pytest.approx(2.25e-3) and off["assumed_size_right"]
 
 
 def test_a_data_problem_is_reported_rightly_only_at_its_size_and_sign() -> None:
