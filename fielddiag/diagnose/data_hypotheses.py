@@ -87,6 +87,14 @@ class DataHypothesis:
         """|value| / std: how many standard deviations the estimate is from zero."""
         return abs(self.value) / self.std if self.std > 0 else np.inf
 
+    @property
+    def worth_correcting(self) -> bool:
+        """Whether the estimate is at least the smallest size worth correcting
+        (:data:`MIN_TIME_OFFSET_S`, :data:`MIN_GAIN_CHANGE`): a refined estimate may end
+        below the size its first estimate was screened by."""
+        least = MIN_TIME_OFFSET_S if self.kind == TIME_OFFSET else MIN_GAIN_CHANGE
+        return abs(self.value) >= least
+
 
 def combine_gain(dynamic: tuple[float, float] | None, gravity: GravityGain | None
                  ) -> DataHypothesis | None:

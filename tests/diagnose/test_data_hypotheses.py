@@ -226,3 +226,31 @@ def test_a_data_problem_warning_carries_its_size_in_the_json():
     gain = data_checks.gain_warning("before", "after", 0.031, 0.004).to_dict()
     assert gain["value"] == pytest.approx(0.031) and gain["session"] == "after"
     assert set(data_checks.DataWarning("clipping", "clips").to_dict()) == {"kind", "message"}
+
+
+def test_a_refined_estimate_below_the_size_worth_correcting_does_not_compete():
+    # seed 1795966240: a delay refined against the linear model to 0.16 +- 0.02 ms (z 8)
+    # was reported, under the 0.2 ms a first estimate must reach
+    from fielddiag.diagnose.data_hypotheses import (
+        GAIN_CHANGE,
+        MIN_GAIN_CHANGE,
+        MIN_TIME_OFFSET_S,
+        TIME_OFFSET,
+        DataHypothesis,
+    )
+    from fielddiag.diagnose.engine import _competes
+
+    small = DataHypothesis(TIME_OFFSET, 1.6e-4, 2e-5)
+    assert small.z == pytest.approx(8.0) and not small.worth_correcting
+    assert DataHypothesis(TIME_OFFSET, -MIN_TIME_OFFSET_S, 2e-5).worth_correcting
+    assert not DataHypothesis(GAIN_CHANGE, 0.5 * MIN_GAIN_CHANGE, 1e-4).worth_correcting
+    assert DataHypothesis(GAIN_CHANGE, -0.01, 1e-3).worth_correcting
+
+    class _Fit:  # the two attributes _competes reads
+        def __init__(self, data, physics=()):
+            self.data, self.physics = data, physics
+
+    assert not _competes(_Fit(small))
+    assert not _competes(_Fit(DataHypothesis(GAIN_CHANGE, 0.01, 1e-3, prior=small)))
+    assert _competes(_Fit(DataHypothesis(TIME_OFFSET, 1.0e-3, 1e-4)))
+    assert _competes(_Fit(None))
