@@ -2668,12 +2668,13 @@ def _physics_twin(chosen: _Fit, fits: Sequence[_Fit]) -> tuple[_Fit, str, str] |
     def looks_like(f: _Fit, g: _Fit) -> bool:
         """``f`` adds to ``g``'s physics an effect that looks like the one data problem
         ``g`` corrects beyond what ``f`` corrects (both corrected alike for the rest: a
-        top mount beside a gain change, the twin of a late channel beside the same
-        gain change)."""
-        extra = kinds(g) - kinds(f)
+        top mount beside a gain change, the twin of a late body channel beside the same
+        gain change; not of a late wheel channel, which no mount makes: seed 1795975666,
+        a 1.72 ms late wheel channel told tied with a mount)."""
+        extra = [h for h in g.data.chain if h.kind not in kinds(f)] if g.data else []
         return (len(extra) == 1 and kinds(f) <= kinds(g) and f.candidate.physical
                 and set(g.physics) < set(f.physics)
-                and any(k in EFFECTS[e].data_twins for k in extra
+                and any(EFFECTS[e].looks_like_data(h.kind, h.value) for h in extra
                         for e in set(f.physics) - set(g.physics)))
 
     pairs = ([(f, chosen) for f in fits if looks_like(f, chosen)]

@@ -603,6 +603,25 @@ class Effect:
         """
         return {}
 
+    @classmethod
+    def looks_like_data(cls, kind: str, value: float) -> bool:
+        """Whether the effect can look like the data problem ``kind`` of size ``value``
+        (one of :attr:`data_twins`, of a sign the physics can make).
+
+        Parameters
+        ----------
+        kind : str
+            The data problem (``channel_time_offset``).
+        value : float
+            Its size (a delay of the body channel [s]).
+
+        Returns
+        -------
+        bool
+            ``kind in data_twins`` (the default; subclasses add the sign).
+        """
+        return kind in cls.data_twins
+
     def unphysical(self, values: Mapping[str, float], std: Mapping[str, float]) -> bool:
         """True if the fitted effect as a whole is not physical (beyond single parameters).
 

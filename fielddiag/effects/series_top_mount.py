@@ -158,6 +158,25 @@ class SeriesTopMount(Effect):
             return {}
         return {"suspension_damping_ns_per_m": c, "mount_stiffness_n_per_m": c / abs(value)}
 
+    @classmethod
+    def looks_like_data(cls, kind: str, value: float) -> bool:
+        """A mount lags the body's response behind the wheel's: it looks like a late body
+        channel (``value`` > 0), never like a late wheel channel, which makes the body
+        seem to lead.
+
+        Parameters
+        ----------
+        kind : str
+            The data problem.
+        value : float
+            The body channel's delay [s].
+
+        Returns
+        -------
+        bool
+        """
+        return kind in cls.data_twins and value > 0
+
     def explain(self, params: Mapping[str, float], per: str = "", hidden: str = "") -> str:
         """A sentence a technician can act on: the mount's stiffness and where damping fades.
 

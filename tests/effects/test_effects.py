@@ -201,6 +201,15 @@ def test_a_top_mount_starts_where_it_lags_like_a_late_channel() -> None:
     assert fx.CoulombFriction().twin_start("channel_time_offset", 1e-3, start) == {}
 
 
+def test_a_top_mount_looks_like_a_late_body_channel_only() -> None:
+    # it lags the body's response behind the wheel's; a late wheel channel makes the body
+    # seem to lead, which no mount does
+    assert SeriesTopMount.looks_like_data("channel_time_offset", 1.2e-3)
+    assert not SeriesTopMount.looks_like_data("channel_time_offset", -1.2e-3)
+    assert not SeriesTopMount.looks_like_data("sensor_gain_changed", 0.03)
+    assert not fx.CoulombFriction.looks_like_data("channel_time_offset", 1.2e-3)
+
+
 # ------------------------------------------------------------------ derivatives
 
 MEMORYLESS = [c for c in EFFECTS.values() if c.n_states == 0]
