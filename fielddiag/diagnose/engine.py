@@ -1771,6 +1771,12 @@ def _diagnose(
         return _with_ride_height([_prepare(d, band, rate, holdout_fraction)
                                   for d in correct_drives(drives, hyp)], restored)
 
+    def moved_by(lin: _Fit) -> str:
+        """Words for how far correcting the drives moved the linear model's M, K and C
+        (``lin``: the linear model fitted to the corrected drives)."""
+        return moved_text(_linear_summary(base.candidate.values, mode),
+                          _linear_summary(lin.candidate.values, mode))
+
     def test_data(hyp: DataHypothesis, lin: _Fit | None = None,
                   known: Sequence[_Fit] = ()) -> _Fit | None:
         """Correct the drives for ``hyp`` and refit the linear model (unless ``lin`` is
@@ -1780,9 +1786,7 @@ def _diagnose(
         lin = lin or grey((), on, _initial_from(base), hyp)
         if lin is None:
             return None
-        lin.candidate.extra["moved"] = moved_text(
-            _linear_summary(base.candidate.values, mode), _linear_summary(lin.candidate.values,
-                                                                          mode))
+        lin.candidate.extra["moved"] = moved_by(lin)
         fits.append(lin)
         if physics_fit is not base:
             # (combo, drives, start, data problem) of the fits that compete, on threads
@@ -2011,9 +2015,7 @@ def _diagnose(
         # the linear model on the same corrected drives (what the correction moved)
         lin = grey((), corrected(refined, hidden.restored), _initial_from(base), refined)
         if lin is not None:
-            lin.candidate.extra["moved"] = fit.candidate.extra["moved"] = moved_text(
-                _linear_summary(base.candidate.values, mode),
-                _linear_summary(lin.candidate.values, mode))
+            lin.candidate.extra["moved"] = fit.candidate.extra["moved"] = moved_by(lin)
             fits.append(lin)
         fits.append(fit)
         say(f"  with the {_DATA_LABEL[hyp.kind]} refined against "

@@ -32,6 +32,14 @@ from fielddiag.diagnose.engine import diagnose_drives  # noqa: E402
 SEED = 1795817438
 
 
+def _refined_ms(lines: list[str], against: str = "") -> list[float]:
+    """The delays [ms] (the body channel's, signed) the progress lines say the delay was
+    refined to: against the linear model (``against`` empty) or against ``against``."""
+    head = f"  refined against {against} to " if against else "  refined to "
+    return [float(m[1]) for m in (re.match(re.escape(head) + r"([+-][\d.]+) \+-", s)
+                                  for s in lines) if m]
+
+
 def test_a_bump_stop_behind_a_late_channel_is_found():
     case = rc.draw_case(SEED, duration_s=60.0, families=rc.PINNED_FAMILIES)
     ((effect, truth),) = case.effects
@@ -67,11 +75,8 @@ def test_a_late_channel_is_measured_against_the_physics_beside_it():
     lines: list[str] = []
     diag = diagnose_drives(rc.case_drives(case), progress=lines.append)
     out = diag.to_dict()
-    against_linear = [float(m[1]) for m in (re.match(r"  refined to \+([\d.]+) \+-", s)
-                                             for s in lines) if m]
-    against_bump = [float(m[1]) for m in (re.match(
-        r"  refined against bump_stop to \+([\d.]+) \+- ([\d.]+) ms", s) for s in lines)
-        if m]
+    against_linear = _refined_ms(lines)
+    against_bump = _refined_ms(lines, "bump_stop")
     # against the linear model the delay comes out twice its size; against the bump stop
     # within 0.5 ms (two std) of the truth
     assert against_linear[-1] > 3.0
@@ -98,8 +103,7 @@ def test_a_lone_delay_is_refined_against_the_physics_found_behind_it():
     lines: list[str] = []
     diag = diagnose_drives(rc.case_drives(case), progress=lines.append)
     out = diag.to_dict()
-    against_linear = [float(m[1]) for m in (re.match(r"  refined to -([\d.]+) \+-", s)
-                                             for s in lines) if m]
+    against_linear = [-d for d in _refined_ms(lines)]  # the wheel channel lags
     assert against_linear[-1] < 1.5  # leaned by the spring the linear model misses
     assert out["findings"][0]["effect"] == "cubic_stiffness"
     assert diag.chosen.data is not None and diag.chosen.data.kind == "channel_time_offset"
@@ -124,10 +128,9 @@ def test_a_delay_the_recorded_physics_disputes_is_refined_though_its_first_step_
     assert late["channel"] == "wheel" and late["value"] == pytest.approx(1.96e-3, abs=0.01e-3)
     lines: list[str] = []
     out = diagnose_drives(rc.case_drives(case), progress=lines.append).to_dict()
-    against_linear = [float(m[1]) for m in (re.match(r"  refined to -([\d.]+) \+-", s)
-                                             for s in lines) if m]
+    against_linear = [-d for d in _refined_ms(lines)]  # the wheel channel lags
     assert against_linear[-1] > 2.6  # leaned by the friction the linear model misses
-    assert any(s.startswith("  refined against coulomb_friction to -") for s in lines)
+    assert _refined_ms(lines, "coulomb_friction")[-1] < 0
     assert out["findings"][0]["effect"] == "coulomb_friction"
     (told,) = [w for w in out["warnings"] if w["kind"] == "channel_time_offset"]
     assert -told["value"] == pytest.approx(late["value"], rel=0.25)
