@@ -9,7 +9,10 @@ S+N-1 (each case whole from its own seed; see the printed ranges), simulated, an
 diagnosed as a before/after pair with fielddiag.diagnose.engine.diagnose_drives. The
 strength of a case's effect(s) is the ratio of the linear model's held-out NRMSE to the
 held-out NRMSE of the true model structure fitted the same way from the true values
-(engine.known_model_nrmse: the noise floor), binned <1x, 1-2x, 2-4x, >4x. Scoring rules
+(engine.known_model_nrmse: the noise floor), binned <1x, 1-2x, 2-4x, >4x; for a case
+with nuisances both are measured on its drives simulated without them (the same road and
+noise), so a nuisance's misfit does not count as the effect's strength (the strength on
+the drives as recorded is kept in the rows as strength_ratio_recorded). Scoring rules
 are in benchmarks/random_scoring.py: an effect is detected when any suspension finding
 is reported; top-1 when the first suspension finding is a true effect (``unexplained``
 for an effect the diagnosis does not try); a false alarm is a suspension finding on a
@@ -32,6 +35,7 @@ import sys
 import time
 import traceback
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -73,6 +77,29 @@ def noise_floor(case: rc.Case, drives: list) -> float | None:
         return None
 
 
+def clean_strength(case: rc.Case) -> tuple[float | None, float | None]:
+    """``(linear NRMSE, noise floor)`` on the case's drives simulated without its
+    nuisances (the same seeds: the same road and noise): what the effect's own strength
+    is measured from. ``(None, None)`` where the linear model cannot be fitted."""
+    from fielddiag.diagnose.engine import known_model_nrmse
+    from fielddiag.errors import FieldDiagError
+
+    clean = replace(case, nuisances=())
+    drives = rc.case_drives(clean)
+    coupling = case.car.coupling_stiffness_n_per_m != 0.0
+    linear_start = {k: v for k, v in true_values(case).items()
+                    if k == "body_mass_kg" or k.split(".")[0] in LINEAR_PARTS}
+    try:
+        lin = known_model_nrmse(drives, [], initial=linear_start, coupling=coupling)
+    except (FieldDiagError, ValueError, ArithmeticError, KeyError):
+        return None, None
+    return lin, noise_floor(clean, drives)
+
+
+#: The linear model's parts by model key prefix.
+LINEAR_PARTS = ("linear_spring", "linear_damper", "coupling_spring")
+
+
 def run_case(seed: int, duration_s: float | None = None,
              families: tuple[str, ...] | None = None) -> dict[str, Any]:
     """Draw, simulate, diagnose and score one case; a failure becomes a row with ``error``."""
@@ -88,8 +115,11 @@ def run_case(seed: int, duration_s: float | None = None,
         out = diagnose_drives(drives).to_dict()
         t2 = time.perf_counter()
         floor = noise_floor(case, drives)
-        t3 = time.perf_counter()
         row.update(rs.score_case(case, out, floor, diagnosis_effects()))
+        if case.effects and case.nuisances:
+            # the effect's own strength: on the drives without the nuisances
+            row.update(rs.with_effect_strength(row, *clean_strength(case)))
+        t3 = time.perf_counter()
         row["findings"] = [{k: f.get(k) for k in ("effect", "parameters", "ride_height")
                             if k in f} for f in out.get("findings", [])]
         row["warnings"] = [{"kind": w.get("kind"), "message": w.get("message")}
@@ -360,6 +390,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--tables", type=Path, default=None,
                     help="reprint the tables from a JSON saved with --out (scored by the "
                          "rules as they read now), and stop")
+    ap.add_argument("--restrength", type=Path, default=None,
+                    help="measure the strength of the saved rows' cases with nuisances on "
+                         "their drives without them (rows saved before it was measured so), "
+                         "save to --out (default: the same file), and stop")
     ap.add_argument("--jobs", type=int, default=2, help="worker processes (default 2)")
     ap.add_argument("--out", type=Path, default=None, help="JSON file for the per-case rows")
     ap.add_argument("--duration", type=float, default=None,
@@ -387,6 +421,8 @@ def main(argv: list[str] | None = None) -> int:
         print("\n".join(report([r for r in rows if "error" not in r],
                                [r for r in rows if "error" in r])))
         return 0
+    if args.restrength is not None:
+        return restrength(args.restrength, args.out or args.restrength, args.jobs)
     if args.seed is None or args.n is None:
         ap.error("give --seed and --n (or --tables)")
     if args.seed < 0 or args.n < 1 or args.jobs < 1:
@@ -440,6 +476,31 @@ def main(argv: list[str] | None = None) -> int:
           f"({wall / max(len(rows), 1):.1f} s per case with {args.jobs} worker(s))")
     if args.out is not None:
         print(f"  rows saved to {args.out}")
+    return 0
+
+
+def _clean_row(row: dict) -> dict:
+    case = rc.Case.from_dict(row["case"])
+    return rs.with_effect_strength(row, *clean_strength(case))
+
+
+def restrength(src: Path, dst: Path, jobs: int) -> int:
+    """Rows of ``src`` whose case has effects and nuisances, their strength measured on
+    the drives without the nuisances (:func:`clean_strength`), saved to ``dst``."""
+    saved = json.loads(src.read_text())
+    todo = [i for i, r in enumerate(saved["rows"])
+            if "error" not in r and r["case"]["effects"] and r["case"]["nuisances"]
+            and "strength_ratio_recorded" not in r]
+    print(f"{len(todo)} of {len(saved['rows'])} rows to measure again", flush=True)
+    os.environ.setdefault("FIELDDIAG_THREADS", "1")
+    with ProcessPoolExecutor(max_workers=jobs) as pool:
+        futs = {pool.submit(_clean_row, saved["rows"][i]): i for i in todo}
+        for k, fut in enumerate(as_completed(futs), 1):
+            i = futs[fut]
+            row = saved["rows"][i] = fut.result()
+            print(f"[{k}/{len(todo)}] seed {row['seed']} {row['family']}: "
+                  f"{row['strength_bin_recorded']} -> {row['strength_bin']}", flush=True)
+    _save(dst, saved)
     return 0
 
 

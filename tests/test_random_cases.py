@@ -330,3 +330,25 @@ def test_the_tests_pinned_families_are_the_registrys():
     for seed in (1795922758, 1795928049, 1795919950):
         assert rc.draw_case(seed, duration_s=60.0) == rc.draw_case(
             seed, duration_s=60.0, families=rc.PINNED_FAMILIES)
+
+
+def test_an_effects_strength_is_measured_without_the_nuisances() -> None:
+    """A top mount whose lag is 0.19 ms beside a 2.4 ms late body channel (seed
+    1795981352): on the drives as recorded the mount's true structure takes up the delay
+    and the mount scored 2-4x the noise floor; on the same drives without the nuisance it
+    is at the floor, and that is the strength the tables bin it by."""
+    import bench_random as br
+
+    case = rc.draw_case(1795981352, duration_s=SHORT_S)
+    assert case.family == "series_top_mount"
+    assert case.nuisance("time_offset")["value"] == pytest.approx(2.38e-3, abs=0.01e-3)
+    lin, floor = br.clean_strength(case)
+    assert lin / floor < 1.5
+    recorded = rs.score_case(case, {"baseline": {"nrmse_validation": 3.0 * floor}}, floor,
+                             ("series_top_mount",))
+    assert recorded["strength_bin"] == "2-4x"
+    row = rs.with_effect_strength(recorded, lin, floor)
+    assert row["strength_bin"] == "1-2x" and row["strength_bin_recorded"] == "2-4x"
+    assert row["strength_ratio_recorded"] == pytest.approx(3.0)
+    # no floor: no strength, said so
+    assert rs.with_effect_strength(recorded, lin, None)["strength_bin"] == "n/a"
