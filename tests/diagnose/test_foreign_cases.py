@@ -101,7 +101,9 @@ def test_free_play_beside_a_named_hysteresis_is_told_unexplained_with_its_play()
     (left,) = [f for f in out["findings"] if f["effect"] == "unexplained"]
     assert "travel since each reversal" in left["explanation"]
     play = [w for w in left["shape_description"] if "reversal of the motion" in w]
-    assert play and "lower for the first" in play[0], left["shape_description"]
+    # lower inside the play ("47 % lower", or "lower by 1.4 times the linear damper's"
+    # where the model keeps a coupling spring the force surface read, session 48)
+    assert play and "lower" in play[0] and "for the first" in play[0], left["shape_description"]
     assert left["model"]["play_half_width_m"] >= 1e-3
     assert left["held_out_gain"] >= 0.15
 
