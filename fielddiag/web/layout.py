@@ -111,9 +111,11 @@ def fmt_duration(seconds: float) -> str:
 # takes it once it shows ``n`` series (the layout goes first through the element's props).
 _PUSH_JS = """window.fdPushChart = window.fdPushChart || function (id, n, option) {
     const pending = window.fdPendingCharts || (window.fdPendingCharts = new Map());
+    const pushed = window.fdPushedCharts || (window.fdPushedCharts = new Map());
     const scheduled = pending.has(id);
     pending.set(id, [n, option]);
     if (scheduled) return;
+    const lengths = (series) => (series || []).map(s => (s && s.data ? s.data.length : 0));
     const draw = (tries) => {
         const [want, opt] = pending.get(id);
         const c = getElement(id);
@@ -124,6 +126,21 @@ _PUSH_JS = """window.fdPushChart = window.fdPushChart || function (id, n, option
         }
         pending.delete(id);
         c.chart.setOption(opt);
+        // the element's layout (its props, series without points) applied after this
+        // wipes the points: an empty chart with its axes, one page load in three on the
+        // session page. Looked at again for a few seconds and put back while no newer
+        // update came
+        pushed.set(id, opt);
+        const expected = lengths(opt.series);
+        const check = (k) => setTimeout(() => {
+            if (pushed.get(id) !== opt || pending.has(id)) return;
+            const e = getElement(id);
+            if (!e || !e.chart || e.chart.isDisposed()) return;
+            const got = lengths(e.chart.getOption().series);
+            if (expected.some((m, i) => m > 0 && !got[i])) e.chart.setOption(opt);
+            if (k < 5) check(k + 1);
+        }, 50 * (1 << k));
+        check(0);
     };
     requestAnimationFrame(() => draw(0));
 };"""
