@@ -1999,14 +1999,20 @@ def _diagnose(
                 return None
             # steps that hover within a std (the delay seen against friction wanders by
             # 0.03 ms about 2.05 ms, seed 1795922709): the estimate stands, to its std
+        return (refined, fit) if refined_stands(refined, hyp, std, phys) else None
+
+    def refined_stands(refined: DataHypothesis, hyp: DataHypothesis, std: float,
+                       phys: tuple[str, ...]) -> bool:
+        """Whether a delay refined against ``phys`` competes: more than two std from the
+        first estimate ``hyp`` (else it is the same), and told from none (else the
+        physics takes up the whole delay: no data problem left to compete)."""
         if abs(refined.value - hyp.value) <= 2.0 * std:
-            return None
+            return False
         if refined.z < MIN_Z or abs(refined.value) < MIN_TIME_OFFSET_S:
-            # the physics takes up the whole delay: no data problem left to compete
             say(f"  against {' + '.join(phys)} the delay is {_data_size(refined)}: "
                 "not told from none")
-            return None
-        return refined, fit
+            return False
+        return True
 
     def delay_profiled(hyp: DataHypothesis, phys: tuple[str, ...], recorded: _Fit,
                        restored: bool) -> tuple[DataHypothesis, _Fit] | None:
@@ -2078,22 +2084,13 @@ def _diagnose(
         # seed 1795907660: quadratic damping + a soft mount + 1.86 ms beat the mount alone
         # at t = 3.2; no channel was late)
         split = _delay_by_amplitude_s(fit, substeps=2, clipped=clipped)
-        if split is not None:
-            (quiet, quiet_std), (lively, lively_std) = split
-            apart = abs(quiet - lively)
-            if apart >= max(AMPLITUDE_LAG_SHARE * abs(tau),
-                            2.0 * float(np.hypot(quiet_std, lively_std))):
-                say(f"  beside it the channels are {1000 * (tau + quiet):+.2f} ms apart in "
-                    f"the quieter half and {1000 * (tau + lively):+.2f} ms in the livelier: "
-                    "a lag that changes with amplitude, not told as a late channel")
-                return None
-        if abs(refined.value - hyp.value) <= 2.0 * std:
+        if split is not None and _halves_apart(split, tau):
+            (quiet, _), (lively, _) = split
+            say(f"  beside it the channels are {1000 * (tau + quiet):+.2f} ms apart in "
+                f"the quieter half and {1000 * (tau + lively):+.2f} ms in the livelier: "
+                "a lag that changes with amplitude, not told as a late channel")
             return None
-        if refined.z < MIN_Z or abs(refined.value) < MIN_TIME_OFFSET_S:
-            say(f"  beside {' + '.join(phys)} the delay is {_data_size(refined)}: not told "
-                "from none")
-            return None
-        return refined, fit
+        return (refined, fit) if refined_stands(refined, hyp, std, phys) else None
 
     behind: dict[int, _Fit | None] = {}
 
@@ -3382,6 +3379,16 @@ def _lags_with_amplitude(effect: str) -> bool:
                                   and "channel_time_offset" not in cls.data_twins)
 
 
+def _halves_apart(split: tuple[tuple[float, float], tuple[float, float]], delay_s: float
+                  ) -> bool:
+    """Whether the delays read off the quiet and lively halves (:func:`_delay_by_amplitude_s`)
+    beside a correction of ``delay_s`` differ by :data:`AMPLITUDE_LAG_SHARE` of it and by
+    two standard errors of the difference: a lag that changes with amplitude."""
+    (quiet, quiet_std), (lively, lively_std) = split
+    return abs(quiet - lively) >= max(AMPLITUDE_LAG_SHARE * abs(delay_s),
+                                      2.0 * float(np.hypot(quiet_std, lively_std)))
+
+
 def _lag_changes_with_amplitude(chosen: _Fit, fits: Sequence[_Fit],
                                 clipped: dict[str, np.ndarray] | None
                                 ) -> tuple[_Fit, str] | None:
@@ -3414,12 +3421,10 @@ def _lag_changes_with_amplitude(chosen: _Fit, fits: Sequence[_Fit],
         return None
     if split is None:
         return None
+    if not _halves_apart(split, hyp.value):
+        return None
     (quiet, quiet_std), (lively, lively_std) = split
     held_quiet, held_lively = hyp.value + quiet, hyp.value + lively
-    apart = abs(held_quiet - held_lively)
-    if apart < max(AMPLITUDE_LAG_SHARE * abs(hyp.value),
-                   2.0 * float(np.hypot(quiet_std, lively_std))):
-        return None
     return ref, _lag_note(hyp, chosen, (
         f"the recording's channels are {1000 * held_quiet:+.2f} +- {1000 * quiet_std:.2f} ms "
         f"apart in its quieter half and {1000 * held_lively:+.2f} +- {1000 * lively_std:.2f} "
