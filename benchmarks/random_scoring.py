@@ -280,8 +280,9 @@ def with_effect_strength(row: dict[str, Any], linear_nrmse: float | None,
     delay). The strength on the recorded drives is kept as ``strength_ratio_recorded``."""
     lin, floor = _finite(linear_nrmse), _finite(floor_nrmse)
     ratio = None if lin is None or floor is None or floor <= 0 else lin / floor
-    return {**row, "strength_ratio_recorded": row.get("strength_ratio"),
-            "strength_bin_recorded": row.get("strength_bin"),
+    return {**row, "strength_ratio_recorded": row.get("strength_ratio_recorded",
+                                                      row.get("strength_ratio")),
+            "strength_bin_recorded": row.get("strength_bin_recorded", row.get("strength_bin")),
             "strength_ratio": ratio, "strength_bin": strength_bin(ratio),
             "clean_linear_nrmse": lin, "clean_floor_nrmse": floor}
 

@@ -352,3 +352,25 @@ def test_an_effects_strength_is_measured_without_the_nuisances() -> None:
     assert row["strength_ratio_recorded"] == pytest.approx(3.0)
     # no floor: no strength, said so
     assert rs.with_effect_strength(recorded, lin, None)["strength_bin"] == "n/a"
+
+
+def test_a_clipped_recordings_lost_peaks_count_against_an_effects_strength() -> None:
+    """Coulomb friction beside 0.9 % clipped wheel readings (seed 1795989813): on drives
+    without the clipping it is 6x the noise floor, on the drives recorded the true model
+    predicts no better than the linear one. The clipping is kept where the strength is
+    measured (what no model gives back), the corrected nuisances are not."""
+    import bench_random as br
+
+    case = rc.draw_case(1795989813, duration_s=SHORT_S)
+    assert case.family == "coulomb_friction"
+    assert [n["kind"] for n in case.nuisances] == ["clipping"]
+    assert br.corrected_nuisances(case) == []
+    lin, floor = br.clean_strength(case)
+    assert lin / floor < 1.2
+    lin0, floor0 = br.clean_strength(replace(case, nuisances=()))
+    assert lin0 / floor0 > 4.0
+    # a row re-measured keeps the strength first recorded, whatever was measured between
+    row = {"strength_ratio": 6.0, "strength_bin": ">4x", "strength_ratio_recorded": 1.0,
+           "strength_bin_recorded": "1-2x"}
+    again = rs.with_effect_strength(row, lin, floor)
+    assert again["strength_ratio_recorded"] == 1.0 and again["strength_bin"] in ("<1x", "1-2x")
