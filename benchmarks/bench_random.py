@@ -337,8 +337,13 @@ def summary_new_families(rows: list[dict]) -> list[str]:
     chosen_on_linear = [r for r in lin if set(r["named"]) & set(NEW_FAMILIES)]
     outside = [r for r in rows if rs.UNEXPLAINED in r["expected"]
                and (r["strength_ratio"] or 0) >= 2.0]
-    shaped = [r for r in outside if r["top1"] and r.get("unexplained_described")
-              and (r.get("unexplained_held_out_gain") or 0.0) >= 0.30]
+    def shaped_of(group: list[dict]) -> list[dict]:
+        return [r for r in group if r["top1"] and r.get("unexplained_described")
+                and (r.get("unexplained_held_out_gain") or 0.0) >= 0.30]
+    shaped = shaped_of(outside)
+    # the outside effect alone (beside a library effect the combined strength is the
+    # pair's, and what is left for a shape after the named effect may be below the floor)
+    outside_alone = [r for r in outside if len(r["effects"]) == 1]
     gains = [r.get("unexplained_held_out_gain") for r in outside
              if r.get("unexplained_held_out_gain") is not None]
     return [
@@ -358,6 +363,8 @@ def summary_new_families(rows: list[dict]) -> list[str]:
         f"  outside the library >= 2x: 'unexplained' first with a shape description and "
         f"held-out gain >= 30 %  {_pct(len(shaped), len(outside))}; held-out gain median / "
         f"worst {_median_worst(gains)}",
+        f"  ... of them the outside effect alone             "
+        f"{_pct(len(shaped_of(outside_alone)), len(outside_alone))}",
     ]
 
 

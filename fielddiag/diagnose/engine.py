@@ -3203,6 +3203,8 @@ DELAY_REFINED_STD = 0.25
 DELAY_REFINE_STEPS = 6
 #: Points of a delay's profile across its range before the parabolas refine its minimum.
 PROFILE_POINTS = 5
+#: Spacings a delay's profile steps on below its range where its least is at the edge.
+PROFILE_STEPS_BELOW = 3
 
 
 def _profile_minimum(cost: Callable[[float], float], lo: float, hi: float, tol: float
@@ -3211,15 +3213,27 @@ def _profile_minimum(cost: Callable[[float], float], lo: float, hi: float, tol: 
     points, then parabolas through the least and its two neighbours, each vertex
     evaluated, until a vertex moves less than ``tol`` (at most three). A fixed number of
     points first (not golden sections): the cost is a fit each, and a smooth profile's
-    minimum is found from few. None where no point could be evaluated."""
+    minimum is found from few. None where no point could be evaluated.
+
+    The least at ``lo`` is no minimum: the profile steps on below it, a spacing at a
+    time, up to :data:`PROFILE_STEPS_BELOW` times (a top mount hides part of a late
+    wheel channel: a 1.45 ms late wheel channel beside a mount read as a 4.80 ms late
+    body channel, the profile over [0, 4.8] ms least at its edge, seed 1795988239)."""
     xs = list(np.linspace(lo, hi, PROFILE_POINTS))
     ys = [cost(x) for x in xs]
-    for _ in range(3):
+    spacing = (hi - lo) / (PROFILE_POINTS - 1)
+    below = 0
+    for _ in range(3 + PROFILE_STEPS_BELOW):
         finite = [(x, y) for x, y in zip(xs, ys, strict=True) if np.isfinite(y)]
         if not finite:
             return None
         finite.sort()
         i = min(range(len(finite)), key=lambda k: finite[k][1])
+        if i == 0 and below < PROFILE_STEPS_BELOW and spacing > 0:
+            below += 1
+            xs.append(finite[0][0] - spacing)
+            ys.append(cost(xs[-1]))
+            continue
         if i == 0 or i == len(finite) - 1:
             return finite[i][0]  # at the range's edge: the edge
         (x0, y0), (x1, y1), (x2, y2) = finite[i - 1:i + 2]

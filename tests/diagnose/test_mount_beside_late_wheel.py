@@ -44,3 +44,23 @@ def test_a_mount_hiding_part_of_a_late_wheel_channel_is_found_with_it():
 #: Long enough that the mount beside the larger delay is told from the delay alone (at
 #: 60 s the profile finds 2.67 ms for 2.79, at t = 2.0 against the delay alone: a tie)
 DURATION_S = 150.0
+
+
+@pytest.mark.timeout(600)
+def test_a_profile_least_at_its_edge_steps_on_beyond_it():
+    """Seed 1795988239: a soft top mount (295 kN/m beside 2323 N s/m: 7.9 ms of lag, 35x
+    the noise floor) and a wheel channel 1.45 ms late. The delay read against the linear
+    model is a 4.80 ms late body channel; the profile of the mount's fit over [0, 4.8] ms
+    was least at its lower edge, where the delay was "not told from none". Stepping on
+    below the edge, it is least at the true wheel lag."""
+    case = rc.draw_case(1795988239, duration_s=60.0, families=rc.PINNED_FAMILIES)
+    late = case.nuisance("time_offset")
+    assert late["channel"] == "wheel" and late["value"] == pytest.approx(1.45e-3, abs=0.01e-3)
+    out = diagnose_drives(rc.case_drives(case)).to_dict()
+    first = out["findings"][0]
+    assert first["effect"] == "series_top_mount"
+    truth = dict(case.effects)["series_top_mount"]
+    for name in ("mount_stiffness_n_per_m", "suspension_damping_ns_per_m"):
+        assert first["parameters"][name] == pytest.approx(truth[name], rel=0.05)
+    offset = next(w["value"] for w in out["warnings"] if w["kind"] == "channel_time_offset")
+    assert offset == pytest.approx(-late["value"], rel=0.05)
