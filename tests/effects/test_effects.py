@@ -373,3 +373,24 @@ def test_an_effect_with_internal_state_is_fitted_through_its_state() -> None:
         # needs), the simulator's at >= 4 kHz: their discretisations agree to 1e-4
         assert got[key] == pytest.approx(value, rel=1e-4), key
     assert max(s.nrmse for s in res.sessions) < 1e-4
+
+
+def test_a_knee_no_drive_reached_is_unphysical():
+    """A drop that is there at a knee at the top of its range (seed 1795997625: 1.9986
+    m/s, a rise of 2e8 N s/m carried by a few peak samples) is no damper's knee; a side
+    without a drop may sit there (one direction's knee only)."""
+    eff = DigressiveDamping()
+    std = {"compression_knee_mps": 0.01, "compression_drop_ns_per_m": 20.0,
+           "rebound_knee_mps": 2e-13, "rebound_drop_ns_per_m": 4e6}
+    vals = {"compression_knee_mps": 0.26, "compression_drop_ns_per_m": 176.0,
+            "rebound_knee_mps": 1.9986, "rebound_drop_ns_per_m": -2.03e8}
+    assert eff.unphysical(vals, std)
+    # the same rebound knee with no drop there: a one-sided knee, physical
+    assert not eff.unphysical({**vals, "rebound_drop_ns_per_m": 1.0e6}, std)
+    # a knee within the speeds with its drop: physical
+    assert not eff.unphysical({**vals, "rebound_knee_mps": 0.3,
+                               "rebound_drop_ns_per_m": 216.0},
+                              {**std, "rebound_drop_ns_per_m": 30.0})
+    # no drop on either side: no knee
+    assert eff.unphysical({**vals, "compression_drop_ns_per_m": 10.0,
+                           "rebound_drop_ns_per_m": 1.0e6}, std)
