@@ -1996,6 +1996,8 @@ def _diagnose(
             if i == 0 and own_std:
                 std = min(hyp.std, seen_std)
             step = _delay_step_s(refined.value, seen, last)
+            if abs(refined.value + step) > MAX_TIME_OFFSET_S:
+                return None  # beyond any channel skew (see refine_delay)
             last = (refined.value, seen)
             # the physics on the drives as recorded sees the delay elsewhere than the first
             # estimate: the steps go on to where the physics sees none, though the first
@@ -2254,9 +2256,23 @@ def _diagnose(
                 # the linear model on the drives corrected for it is fitted already (on
                 # passive sag, as the refinement assumes; on the whole drives)
                 return hyp, None if physics_fit.restored or clean is not None else trial
+            if abs(hyp.value + step) > MAX_TIME_OFFSET_S:
+                # steps that leave the range of a channel skew: no delay they settle at
+                # would be one (seed 1795999381: -33, -24, -11, +77 ms, then 3e14 ms
+                # beside a wheel channel clipped on 1.3 % of its samples)
+                return replace(hyp, value=hyp.value + step), None
             hyp = replace(hyp, value=hyp.value + step)
             say(f"  refined to {_data_size(hyp)}")
         return hyp, None
+
+    def _a_skew(hyp: DataHypothesis) -> bool:
+        """Whether the delay ``hyp`` is within the range of a channel skew
+        (:data:`MAX_TIME_OFFSET_S`); else not tested, and said so."""
+        if abs(hyp.value) <= MAX_TIME_OFFSET_S:
+            return True
+        say(f"  a delay of {1000 * hyp.value:+.0f} ms is beyond any channel skew "
+            f"({1000 * MAX_TIME_OFFSET_S:g} ms): not a data problem this test can tell")
+        return False
 
     def estimated_again(fit: _Fit, grav: GravityGain | None) -> list[DataHypothesis]:
         """The data hypotheses the transmissibilities of the drives corrected for
@@ -2293,6 +2309,8 @@ def _diagnose(
         converged = None
         if hyp.kind == "channel_time_offset":
             hyp, converged = refine_delay(hyp)
+            if not _a_skew(hyp):
+                continue
         lin = test_data(hyp, converged)
         if lin is not None and hyp.kind == "channel_time_offset":
             offset_fit = lin
@@ -2383,7 +2401,8 @@ def _diagnose(
             say(f"testing a {_DATA_LABEL[d.kind]} ({_data_size(d)}) on top of the gain "
                 "change")
             d, converged = refine_delay(d)
-            look_behind_chain(test_data(d, converged))
+            if _a_skew(d):
+                look_behind_chain(test_data(d, converged))
     # a data problem whose refined estimate is within MIN_Z standard deviations of zero is
     # not told from none: its corrected fits do not compete
     sel = select_model(base.candidate, [f.candidate for f in fits[1:] if _competes(f)],
@@ -3207,6 +3226,10 @@ DELAY_REFINED_STD = 0.25
 DELAY_REFINE_STEPS = 6
 #: Points of a delay's profile across its range before the parabolas refine its minimum.
 PROFILE_POINTS = 5
+#: The largest delay between the channels tested as a data problem [s]: a DAQ's skew is a
+#: sample or a filter's group delay (a few ms at >= 100 Hz); 20 ms is a fifth of a wheel
+#: hop's period, where a delay no longer reads as a phase slope.
+MAX_TIME_OFFSET_S = 0.02
 #: A delay a profile beside a top mount finds is told only from this size [s]: a soft
 #: mount's model leaves 0.27-0.38 ms of wheel lag where no channel is late (mounts with
 #: 5.8-6.9 ms of lag, seeds 1795986445, 1795986494, 1795997634), the model's second-order
