@@ -10,9 +10,11 @@ diagnosed as a before/after pair with fielddiag.diagnose.engine.diagnose_drives.
 strength of a case's effect(s) is the ratio of the linear model's held-out NRMSE to the
 held-out NRMSE of the true model structure fitted the same way from the true values
 (engine.known_model_nrmse: the noise floor), binned <1x, 1-2x, 2-4x, >4x; for a case
-with nuisances both are measured on its drives simulated without them (the same road and
-noise), so a nuisance's misfit does not count as the effect's strength (the strength on
-the drives as recorded is kept in the rows as strength_ratio_recorded). Scoring rules
+with nuisances both are measured on its drives simulated without those a model corrects
+(gain change, late channel, bias drift; the same road and noise), so a nuisance's misfit
+does not count as the effect's strength, while clipping, which loses what no model gives
+back, is kept (the strength on the drives as recorded is kept in the rows as
+strength_ratio_recorded). Scoring rules
 are in benchmarks/random_scoring.py: an effect is detected when any suspension finding
 is reported; top-1 when the first suspension finding is a true effect (``unexplained``
 for an effect the diagnosis does not try); a false alarm is a suspension finding on a
