@@ -286,6 +286,29 @@ def _coupling_significant(base: _Fit, prepared: Sequence[_Prepared],
     return bool(surface.candidate.physical and _coupling_z(surface) > COUPLING_MIN_Z)
 
 
+def _coupling_beside_state(physics_fit: _Fit, mass_bounds_kg: tuple[float, float] | None,
+                           say: Callable[[str], None]) -> bool:
+    """Whether the physics chosen without the coupling spring, where it holds an internal
+    state (a top mount, hysteresis: what neither the linear model nor the memoryless force
+    surface of :func:`_coupling_significant` describes), reads the coupling at
+    :data:`COUPLING_MIN_Z` when fitted with it. Beside soft mounts couplings of 4-10 % of
+    the suspension's stiffness were left out of every model and their misfit read as
+    0.27-0.38 ms of wheel lag (seeds 1795986445, 1795986494, 1795997634)."""
+    if not any(EFFECTS[e].n_states for e in physics_fit.physics):
+        return False
+    try:
+        fit = _grey_fit(physics_fit.physics, physics_fit.prepared, True,
+                        _initial_from(physics_fit), 2, mass_bounds_kg)
+    except (FieldDiagError, np.linalg.LinAlgError, FloatingPointError):
+        return False
+    if not (fit.candidate.physical and _coupling_z(fit) > COUPLING_MIN_Z):
+        return False
+    say(f"  beside {' + '.join(physics_fit.physics)} the coupling spring reads "
+        f"{fit.candidate.values[_COUPLING_KEY]:.0f} N/m at {_coupling_z(fit):.1f} std: "
+        "every model fitted again with it")
+    return True
+
+
 def _grey_fit(
     effects: Sequence[str],
     prepared: Sequence[_Prepared],
@@ -1579,6 +1602,7 @@ def _diagnose(
     analysis_rate_hz: float,
     max_pair_fits: int,
     progress: Callable[[str], None] | None,
+    with_coupling: bool = False,
 ) -> Diagnosis:
     say = progress or (lambda _msg: None)
     drives = list(drives)
@@ -1604,7 +1628,7 @@ def _diagnose(
     say("fitting the linear model")
     start, mass_bounds = _linear_start(fd)
     base = _grey_fit((), prepared, True, start, 2, mass_bounds)
-    coupling = _coupling_significant(base, prepared, mass_bounds)
+    coupling = with_coupling or _coupling_significant(base, prepared, mass_bounds)
     if not coupling:
         base = _grey_fit((), prepared, False, _initial_from(base), 2, mass_bounds)
     hopeless = _linear_hopeless(base, mass_bounds) if mode == "pair" else None
@@ -1817,6 +1841,10 @@ def _diagnose(
     twins = frozenset(e for e in effects if EFFECTS[e].data_twins)
     physics = select_model(base.candidate, [f.candidate for f in fits[1:]], data_twins=twins)
     physics_fit = next(f for f in fits if f.candidate is physics.chosen)
+    if not coupling and _coupling_beside_state(physics_fit, mass_bounds, say):
+        # every model again, with the coupling
+        return _diagnose(drives, effects, band_hz, holdout_fraction, analysis_rate_hz,
+                         max_pair_fits, progress, with_coupling=True)
     surface_wins = _surface_wins(surface_fit, physics_fit, base, say)
 
     def signature_left(combo: tuple[str, ...], on: Sequence[_Prepared]) -> float:
@@ -2084,8 +2112,8 @@ def _diagnose(
         refined = replace(hyp, value=tau, std=std, refined_with=phys)
         say(f"  the fit of {' + '.join(phys)} misfits least at {_data_size(refined)}")
         if abs(tau) < PROFILED_DELAY_FLOOR_S:
-            say(f"  within the {1000 * PROFILED_DELAY_FLOOR_S:g} ms a mount's model leaves "
-                "as a delay: not told")
+            say(f"  within {1000 * PROFILED_DELAY_FLOOR_S:g} ms of none, where a model's own "
+                "misfit beside a mount reads as a delay: not told")
             return None
         # a share between the two explanations is told only where it beats each alone by
         # the selection's rule: the mount added to the delay as physics is, the delay
@@ -2267,11 +2295,12 @@ def _diagnose(
 
     def _a_skew(hyp: DataHypothesis) -> bool:
         """Whether the delay ``hyp`` is within the range of a channel skew
-        (:data:`MAX_TIME_OFFSET_S`); else not tested, and said so."""
+        (:data:`MAX_TIME_OFFSET_S`); else said so: its fits do not compete
+        (:func:`_competes`), though the physics may refine it into the range."""
         if abs(hyp.value) <= MAX_TIME_OFFSET_S:
             return True
         say(f"  a delay of {1000 * hyp.value:+.0f} ms is beyond any channel skew "
-            f"({1000 * MAX_TIME_OFFSET_S:g} ms): not a data problem this test can tell")
+            f"({1000 * MAX_TIME_OFFSET_S:g} ms): it does not compete as it is")
         return False
 
     def estimated_again(fit: _Fit, grav: GravityGain | None) -> list[DataHypothesis]:
@@ -2309,8 +2338,7 @@ def _diagnose(
         converged = None
         if hyp.kind == "channel_time_offset":
             hyp, converged = refine_delay(hyp)
-            if not _a_skew(hyp):
-                continue
+            _a_skew(hyp)
         lin = test_data(hyp, converged)
         if lin is not None and hyp.kind == "channel_time_offset":
             offset_fit = lin
@@ -2401,8 +2429,8 @@ def _diagnose(
             say(f"testing a {_DATA_LABEL[d.kind]} ({_data_size(d)}) on top of the gain "
                 "change")
             d, converged = refine_delay(d)
-            if _a_skew(d):
-                look_behind_chain(test_data(d, converged))
+            _a_skew(d)
+            look_behind_chain(test_data(d, converged))
     # a data problem whose refined estimate is within MIN_Z standard deviations of zero is
     # not told from none: its corrected fits do not compete
     sel = select_model(base.candidate, [f.candidate for f in fits[1:] if _competes(f)],
@@ -2741,6 +2769,7 @@ def _competes(fit: _Fit) -> bool:
     physics (:attr:`DataHypothesis.refined_with`) holds only beside that physics."""
     return fit.data is None or all(
         h.z >= MIN_Z and h.worth_correcting and set(h.refined_with) <= set(fit.physics)
+        and (h.kind != "channel_time_offset" or abs(h.value) <= MAX_TIME_OFFSET_S)
         for h in fit.data.chain)
 
 
@@ -3226,7 +3255,8 @@ DELAY_REFINED_STD = 0.25
 DELAY_REFINE_STEPS = 6
 #: Points of a delay's profile across its range before the parabolas refine its minimum.
 PROFILE_POINTS = 5
-#: The largest delay between the channels tested as a data problem [s]: a DAQ's skew is a
+#: The largest delay between the channels that competes as a data problem [s] (a larger
+#: estimate may still be refined into the range against the physics): a DAQ's skew is a
 #: sample or a filter's group delay (a few ms at >= 100 Hz); 20 ms is a fifth of a wheel
 #: hop's period, where a delay no longer reads as a phase slope.
 MAX_TIME_OFFSET_S = 0.02
@@ -3236,8 +3266,9 @@ MAX_TIME_OFFSET_S = 0.02
 #: (2670-3628 N/m, 4-10 % of the suspension's) that neither the linear model nor the force
 #: surface read at COUPLING_MIN_Z beside the mount, so every model left it out and its
 #: misfit read as a delay: the mount's profile with the coupling is least at 0 (seed
-#: 1795997634, the mount's stiffness within 0.5 %). The coupling decided beside the
-#: chosen physics is open; this floor keeps such a misfit from being told as a late channel.
+#: 1795997634, the mount's stiffness within 0.5 %). The coupling is now decided beside
+#: the chosen physics too where it holds a state (:func:`_coupling_beside_state`); this
+#: floor keeps what such a misfit may still leave from being told as a late channel.
 PROFILED_DELAY_FLOOR_S = 5e-4
 #: Spacings a delay's profile steps on below its range where its least is at the edge.
 PROFILE_STEPS_BELOW = 3

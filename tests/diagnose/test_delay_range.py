@@ -1,4 +1,4 @@
-"""A delay is tested as a data problem only within the range of a channel skew.
+"""A delay competes as a data problem only within the range of a channel skew.
 
 Seed 1795999381 of the randomized generator (benchmarks/random_cases.py), 60 s drives:
 asymmetric damping and a hysteretic spring, a body channel 2.84 ms late and a wheel channel
