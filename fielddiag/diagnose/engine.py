@@ -2206,12 +2206,13 @@ def _diagnose(
                     prior = replace(h, prior=prior)
             hyp = replace(hyp, prior=prior)
         phys = twins_of[:1]
-        on = corrected(hyp.prior, lone.restored) if hyp.prior is not None else None
         recorded = next((f for f in fits if f.physics == phys and f.data is hyp.prior
                          and f.restored == lone.restored and f.candidate.physical), None)
         if recorded is None:
-            recorded = grey(phys, on if on is not None else _with_ride_height(
-                prepared, lone.restored), _initial_from(lone), hyp.prior)
+            # the mount on the drives corrected for the rest of the chain only
+            on = (corrected(hyp.prior, lone.restored) if hyp.prior is not None
+                  else _with_ride_height(prepared, lone.restored))
+            recorded = grey(phys, on, _initial_from(lone), hyp.prior)
             if recorded is None or not recorded.candidate.physical:
                 return None
             fits.append(recorded)
@@ -2293,15 +2294,13 @@ def _diagnose(
             say(f"  refined to {_data_size(hyp)}")
         return hyp, None
 
-    def _a_skew(hyp: DataHypothesis) -> bool:
-        """Whether the delay ``hyp`` is within the range of a channel skew
-        (:data:`MAX_TIME_OFFSET_S`); else said so: its fits do not compete
-        (:func:`_competes`), though the physics may refine it into the range."""
-        if abs(hyp.value) <= MAX_TIME_OFFSET_S:
-            return True
-        say(f"  a delay of {1000 * hyp.value:+.0f} ms is beyond any channel skew "
-            f"({1000 * MAX_TIME_OFFSET_S:g} ms): it does not compete as it is")
-        return False
+    def say_if_beyond_a_skew(hyp: DataHypothesis) -> None:
+        """Says so where the delay ``hyp`` is beyond a channel skew's range
+        (:data:`MAX_TIME_OFFSET_S`): its fits do not compete (:func:`_competes`), though
+        the physics may refine it into the range."""
+        if abs(hyp.value) > MAX_TIME_OFFSET_S:
+            say(f"  a delay of {1000 * hyp.value:+.0f} ms is beyond any channel skew "
+                f"({1000 * MAX_TIME_OFFSET_S:g} ms): it does not compete as it is")
 
     def estimated_again(fit: _Fit, grav: GravityGain | None) -> list[DataHypothesis]:
         """The data hypotheses the transmissibilities of the drives corrected for
@@ -2338,7 +2337,7 @@ def _diagnose(
         converged = None
         if hyp.kind == "channel_time_offset":
             hyp, converged = refine_delay(hyp)
-            _a_skew(hyp)
+            say_if_beyond_a_skew(hyp)
         lin = test_data(hyp, converged)
         if lin is not None and hyp.kind == "channel_time_offset":
             offset_fit = lin
@@ -2429,7 +2428,7 @@ def _diagnose(
             say(f"testing a {_DATA_LABEL[d.kind]} ({_data_size(d)}) on top of the gain "
                 "change")
             d, converged = refine_delay(d)
-            _a_skew(d)
+            say_if_beyond_a_skew(d)
             look_behind_chain(test_data(d, converged))
     # a data problem whose refined estimate is within MIN_Z standard deviations of zero is
     # not told from none: its corrected fits do not compete
