@@ -76,7 +76,7 @@ from fielddiag.diagnose.selection import (
     select_model,
 )
 from fielddiag.diagnose.shape import fit_shape_model, travel_since_reversal
-from fielddiag.diagnose.surface_words import describe_force_surface
+from fielddiag.diagnose.surface_words import describe_force_surface, describe_memory_surface
 from fielddiag.drive import CornerDrive, read_corner_drive
 from fielddiag.effects import EFFECTS, ForceModel, diagnosis_effects, get_effect, split_shape
 from fielddiag.effects.base import TRAVEL_BOUND_M
@@ -1357,6 +1357,30 @@ def _map_predicts(x: np.ndarray, v: np.ndarray, dec: np.ndarray, is_val: np.ndar
 
 #: The effect that names no physics (:mod:`fielddiag.effects.force_surface`).
 SURFACE = "force_surface"
+#: The shape with memory of each reversal that names no physics
+#: (:mod:`fielddiag.effects.memory_surface`): what a memoryless surface cannot describe
+#: where the force depends on the travel since the last reversal (free play in a damper's
+#: mounting, a damper slow to build pressure, a loop of unknown shape).
+MEMORY_SURFACE = "memory_surface"
+#: The shapes that name no physics, fitted beside the named effects; the one that predicts
+#: held-out data best competes with them (:func:`_surface_wins`).
+SURFACES = ((SURFACE,), (MEMORY_SURFACE,))
+
+
+def _surface_label(fit: _Fit) -> str:
+    """Words for the shape ``fit`` holds (a memoryless surface or one with memory)."""
+    return ("a force with memory of each reversal" if MEMORY_SURFACE in fit.physics
+            else "a smooth force surface")
+
+
+def _best_surface(fits: Sequence[_Fit | None]) -> _Fit | None:
+    """The surface fit (of :data:`SURFACES`) that predicts held-out data best among the
+    physical ones (else the first fitted)."""
+    done = [f for f in fits if f is not None]
+    physical = [f for f in done if f.candidate.physical]
+    if physical:
+        return min(physical, key=lambda f: f.candidate.mse_validation)
+    return done[0] if done else None
 
 
 @dataclass
@@ -1391,11 +1415,11 @@ def _surface_wins(surface: _Fit | None, physics_fit: _Fit, base: _Fit,
     if (vs_ref.t >= t_ref
             and vs_ref.gain() >= MIN_GAIN_PER_PARAM * max(1, s.n_params - ref.n_params)
             and vs_base.beats(s.n_params - base.candidate.n_params)):
-        say(f"  a smooth force surface predicts held-out data better than {named} (NRMSE "
+        say(f"  {_surface_label(surface)} predicts held-out data better than {named} (NRMSE "
             f"{s.nrmse_validation:.4f} against {ref.nrmse_validation:.4f}, t = "
             f"{vs_ref.t:.1f}): a shape no named effect describes")
         return _SurfaceWin(surface, physics_fit, vs_ref)
-    say(f"  a smooth force surface predicts held-out data no better than {named} (t = "
+    say(f"  {_surface_label(surface)} predicts held-out data no better than {named} (t = "
         f"{vs_ref.t:.1f})")
     return None
 
@@ -1410,13 +1434,22 @@ def _surface_finding(win: _SurfaceWin, chosen: _Fit, base: _Fit, coupling: bool,
     gain = 1.0 - s.mse_validation / base.candidate.mse_validation
     reason = hopeless.split(" (")[0] if hopeless else None
     finding, _ = _unexplained(base, base.prepared, coupling, base, say, known=known,
-                              reason=reason or "a smooth force surface predicts better "
-                                               "than the named effects")
+                              reason=reason or f"{_surface_label(win.fit)} predicts "
+                                               "better than the named effects")
     names = ", ".join(EFFECTS[n].description for n in known if n in EFFECTS)
-    vals = {k.split(".", 1)[1]: v for k, v in s.values.items() if k.startswith(SURFACE + ".")}
+    form = win.fit.physics[0]
+    vals = {k.split(".", 1)[1]: v for k, v in s.values.items() if k.startswith(form + ".")}
     r, v, _, _, _ = _departure(base, base.prepared, coupling)
     unit = "N" if "body_mass_kg" in s.values else "N/kg"
-    told = describe_force_surface(vals, r, v, unit)
+    memory = form == MEMORY_SURFACE
+    if memory:
+        damping = next((x for k, x in s.values.items() if k.endswith(".suspension_damping"
+                                                                      "_ns_per_m")), None)
+        told = describe_memory_surface(vals, r, v, unit, damping)
+        what_surface = "A force with memory of each reversal of the motion"
+    else:
+        told = describe_force_surface(vals, r, v, unit)
+        what_surface = "A smooth force surface in travel and speed"
     if told:  # the surface's own shape (the smooth model of the departure stays attached)
         finding["shape_description"] = told
     finding["shape_model_held_out_gain"] = finding["held_out_gain"]
@@ -1431,14 +1464,16 @@ def _surface_finding(win: _SurfaceWin, chosen: _Fit, base: _Fit, coupling: bool,
         confidence=float(min(1.0, max(0.5, confidence(win.comparison, gain)))),
         outranks_named=bool(chosen.physics),
         force_surface={
-            "coefficients_n": vals,
+            "form": "memory_of_reversals" if memory else "travel_and_speed",
+            "coefficients_n": {k: x for k, x in vals.items() if k.endswith("_n")},
+            **({"memory_travel_m": vals.get("memory_travel_m")} if memory else {}),
             "nrmse_validation": s.nrmse_validation,
             "held_out_gain_over_linear": gain,
             "t_vs_named": win.comparison.t,
         },
         explanation=(
             (f"{reason[0].upper()}{reason[1:]}. " if reason else "")
-            + f"A smooth force surface in travel and speed predicts held-out data "
+            + f"{what_surface} predicts held-out data "
             f"{100 * gain:.0f} % better than the linear model (held-out NRMSE "
             f"{base.candidate.nrmse_validation:.3f} -> {s.nrmse_validation:.3f}) and better "
             f"than any named effect ({names}; t = {win.comparison.t:.1f}): the suspension "
@@ -1677,8 +1712,7 @@ def _diagnose(
     # beside the library, a smooth force surface that names nothing: where it predicts
     # held-out data better than every named effect, the mismatch is not given the name
     # that fits least badly (fitted with the single effects, never chosen as physics)
-    surface = (SURFACE,)
-    screen([(e,) for e in effects] + [surface])
+    screen([(e,) for e in effects] + list(SURFACES))
     fits = [base]
 
     def cost(combo: tuple[str, ...]) -> float:
@@ -1781,10 +1815,10 @@ def _diagnose(
                 return [f, fr]
         return [f]
 
-    done = map_threads(lambda c: [grey(c)] if c == surface else fit_single(c),
-                       [*to_fit, surface], cost=cost)
-    surface_fit = done[-1][0]
-    singles = [f for out in done[:-1] for f in out]
+    done = map_threads(lambda c: [grey(c)] if c in SURFACES else fit_single(c),
+                       [*to_fit, *SURFACES], cost=cost)
+    surface_fit = _best_surface([out[0] for out in done[-len(SURFACES):]])
+    singles = [f for out in done[:-len(SURFACES)] for f in out]
     fits += singles
     best: dict[tuple[str, ...], _Fit] = {}
     for f in singles:
@@ -2595,9 +2629,12 @@ def _diagnose(
         if lin is not None:
             say("fitting the force surface to the drives corrected for the "
                 f"{_DATA_LABEL[chosen.data.kind]}")
+            # the form of surface that predicted best on the drives as recorded
+            form = surface_fit.physics if surface_fit is not None else (SURFACE,)
             try:
-                corrected = _grey_fit((SURFACE,), chosen.prepared, coupling,
-                                      _initial_from(lin), 2, mass_bounds, chosen.data)
+                corrected = _grey_fit(form, chosen.prepared, coupling,
+                                      _initial_from(surface_fit if form != (SURFACE,) else lin),
+                                      2, mass_bounds, chosen.data)
             except (FieldDiagError, np.linalg.LinAlgError, FloatingPointError):
                 corrected = None
             surface_wins = _surface_wins(corrected, chosen, lin, say)
@@ -2632,7 +2669,8 @@ def _diagnose(
             say("fitting the linear model and the force surface away from the clipped "
                 "readings")
             ref = base_for_surface
-            pair = _fits_beside_clipping([(), (SURFACE,)], ref, coupling, clipped, lost,
+            pair = _fits_beside_clipping([(), surface_reported.physics], ref, coupling,
+                                         clipped, lost,
                                          mass_bounds)
             surface_note = _clipping_competes(
                 *(pair if all(f is not None for f in pair) else (ref, surface_reported)),
@@ -2909,7 +2947,7 @@ def _gain_judged_by_the_surface(chosen: _Fit, fits: Sequence[_Fit], surface: _Fi
     if gain_fit is None:
         return None
     try:
-        corrected = _grey_fit((SURFACE,), gain_fit.prepared, coupling, _initial_from(surface),
+        corrected = _grey_fit(surface.physics, gain_fit.prepared, coupling, _initial_from(surface),
                               2, mass_bounds_kg, gain_fit.data)
     except (FieldDiagError, np.linalg.LinAlgError, FloatingPointError):
         return None
@@ -3174,7 +3212,7 @@ def _clipping_competes(base: _Fit, chosen: _Fit, clipped: dict[str, np.ndarray],
     near = _near_clipping(base.runs, clipped)
     if not (near.any() or lost):
         return None
-    found = ("a smooth force surface" if chosen.physics == (SURFACE,) else
+    found = (_surface_label(chosen) if chosen.physics in SURFACES else
              " + ".join(e.replace("_", " ") for e in chosen.effects)
              or f"the model corrected for the {_DATA_LABEL[chosen.data.kind]}")
     share_e = float(np.sum(eb[near] ** 2) / np.sum(eb**2))

@@ -15,7 +15,7 @@ import numpy as np
 
 from fielddiag.effects.force_surface import SURFACE_SPEED_MPS, SURFACE_TRAVEL_M
 
-__all__ = ["describe_force_surface"]
+__all__ = ["describe_force_surface", "describe_memory_surface"]
 
 #: A term is told where its rms force over the recording is at least this share of the
 #: strongest term's.
@@ -100,3 +100,91 @@ def describe_force_surface(coefficients: Mapping[str, float], r_m: np.ndarray,
     top = max(v for _, v in rms.values())
     told = sorted((t for t in rms if rms[t][1] >= TOLD_SHARE * top), key=lambda t: -rms[t][1])
     return [_words(t, rms[t][0], unit) for t in told]
+
+
+def describe_memory_surface(coefficients: Mapping[str, float], r_m: np.ndarray,
+                            rdot_mps: np.ndarray, unit: str = "N",
+                            damping: float | None = None) -> list[str]:
+    """Sentences for the terms of a force with memory of each reversal
+    (:class:`fielddiag.effects.memory_surface.MemorySurface`) that carry its force over
+    the recorded states, strongest first.
+
+    Parameters
+    ----------
+    coefficients : mapping
+        ``memory_<term>_n`` (``loop``, ``loop_speed``, ``loop_travel``) in ``unit``, and
+        ``memory_travel_m`` [m] (the prefix may be left off).
+    r_m, rdot_mps : ndarray
+        The recorded suspension travel [m] from the unloaded ride height and its rate [m/s].
+    unit : str
+        The force unit of the coefficients (``N``, or ``N/kg`` per unit mass).
+    damping : float or None
+        The linear damping fitted beside the surface [``unit`` s/m]: the damping's change
+        after a reversal is then told as a share of it.
+
+    Returns
+    -------
+    list of str
+        Empty where the surface carries no force.
+
+    Examples
+    --------
+    >>> describe_memory_surface({"loop_speed": 300.0, "memory_travel_m": 0.002},
+    ...                         np.array([0.02, -0.02]), np.array([0.2, -0.2]),
+    ...                         damping=2000.0)  # doctest: +ELLIPSIS
+    ["the damping is 86 % (3e+03 N s/m) weaker for about the first 6 mm after each reversal..."]
+    """
+    vals = {k.removeprefix("memory_").removesuffix("_n").removesuffix("_m"): v
+            for k, v in coefficients.items()}
+    z_m = float(vals.get("travel", np.nan))
+    q = np.asarray(r_m, float) / SURFACE_TRAVEL_M
+    w = np.asarray(rdot_mps, float) / SURFACE_SPEED_MPS
+    basis = {"loop": np.ones_like(q), "loop_speed": np.abs(w), "loop_travel": q}
+    rms = {}
+    for term, phi in basis.items():
+        a = float(vals.get(term, 0.0))
+        if np.isfinite(a) and a != 0.0 and phi.size:
+            rms[term] = (a, float(np.sqrt(np.mean((a * phi) ** 2))))
+    if not rms or not np.isfinite(z_m):
+        return []
+    top = max(v for _, v in rms.values())
+    told = sorted((t for t in rms if rms[t][1] >= TOLD_SHARE * top), key=lambda t: -rms[t][1])
+    reach_mm = 3e3 * z_m  # the state within 10 % of its new side after ~3 memory travels
+    amplitude_m = float(np.sqrt(2.0) * np.std(r_m)) if np.size(r_m) else 0.0
+    out = []
+    for t in told:
+        a = rms[t][0]
+        if t == "loop_speed":
+            dc = abs(a) / SURFACE_SPEED_MPS  # each way from the mean damping
+            share = (min(2 * dc / (damping + dc), 1.0)
+                     if damping is not None and damping + dc > 0 and a > 0 else None)
+            if a > 0:
+                first = f"for about the first {reach_mm:.2g} mm after each reversal of the motion"
+                if share is not None and share >= 0.9:
+                    how = (f"the damping all but vanishes {first} (it is {2 * dc:.3g} {unit} "
+                           "s/m lower there than later in the stroke)")
+                else:
+                    size = (f"{100 * share:.0f} % ({2 * dc:.3g} {unit} s/m)"
+                            if share is not None else f"{2 * dc:.3g} {unit} s/m")
+                    how = f"the damping is {size} weaker {first} than later in the stroke"
+                out.append(f"{how}: as free play in the damper's mounting, or a damper slow "
+                           "to build pressure, would make it")
+            else:
+                out.append(
+                    f"the damping is {2 * dc:.3g} {unit} s/m stronger for about the first "
+                    f"{reach_mm:.2g} mm after each reversal of the motion than later in the "
+                    "stroke")
+        elif t == "loop":
+            energy = 4.0 * abs(a) * amplitude_m
+            what = ("a hysteresis loop" if a > 0 else
+                    "a loop that gives energy back (the force leads the motion)")
+            out.append(
+                f"{what} {2 * abs(a):.3g} {unit} high that closes over about "
+                f"{reach_mm:.2g} mm after each reversal ({energy:.3g} "
+                f"{'J' if unit == 'N' else 'J/kg'} per cycle of +-{1e3 * amplitude_m:.2g} mm)")
+        else:
+            side = "rebound (extension)" if a > 0 else "compression"
+            out.append(
+                f"a hysteresis loop whose height changes along the travel: "
+                f"{2 * abs(a):.3g} {unit} higher per {_MM:.0f} mm toward {side}")
+    return out

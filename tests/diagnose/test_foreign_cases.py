@@ -94,18 +94,20 @@ def test_free_play_in_the_damper_is_not_a_late_channel():
 def test_free_play_beside_a_named_hysteresis_is_told_unexplained_with_its_play():
     # the independent simulator's seed 1795947584 (strength 15x): a hysteretic spring
     # describes most of a damper idle in a free play, but what is left depends on the
-    # travel since each reversal (11.8 % of the residual, t = 9.8) more than on travel and
-    # speed (7.1 %, under the 8 % a finding needs). It was told only "hysteretic_spring";
-    # now the rest is `unexplained`, its shape a damping lower inside a play
+    # travel since each reversal (11.8 % of the residual, t = 9.8). It was told only
+    # "hysteretic_spring"; then (session 42) the rest `unexplained` after it, its shape a
+    # damping lower inside a play; now (session 50) a force with memory of each reversal
+    # predicts 91 % of the linear model's held-out misfit, far more than the named pair,
+    # and the mismatch is told first as what it is: the damping gone after each reversal
     _, out = _diagnose(1795947584, "damper_free_play")
-    (left,) = [f for f in out["findings"] if f["effect"] == "unexplained"]
-    assert "travel since each reversal" in left["explanation"]
-    play = [w for w in left["shape_description"] if "reversal of the motion" in w]
-    # lower inside the play ("47 % lower", or "lower by 1.4 times the linear damper's"
-    # where the model keeps a coupling spring the force surface read, session 48)
-    assert play and "lower" in play[0] and "for the first" in play[0], left["shape_description"]
-    assert left["model"]["play_half_width_m"] >= 1e-3
-    assert left["held_out_gain"] >= 0.15
+    first = out["findings"][0]
+    assert first["effect"] == "unexplained", [f["effect"] for f in out["findings"]]
+    assert first["force_surface"]["form"] == "memory_of_reversals"
+    play = [w for w in first["shape_description"] if "after each reversal of the motion" in w]
+    assert play and "damping" in play[0] and "free play" in play[0], first["shape_description"]
+    assert first["held_out_gain"] >= 0.5
+    # the named effects that fitted least badly are listed after it, as part of it
+    assert "describes only part of it" in first["explanation"]
 
 
 @pytest.mark.timeout(600)
@@ -128,3 +130,23 @@ def test_structure_its_smooth_shape_predicts_unsurely_is_not_a_finding():
     case, out = _diagnose(1795964974, "linear")
     assert out["verdict"] == "adequate", out["findings"]
     assert not out["findings"]
+
+
+@pytest.mark.timeout(600)
+def test_free_play_is_told_as_a_force_with_memory_of_each_reversal():
+    # the independent simulator's seed 1795986074 (strength 9x): the damper idle in a free
+    # play for a few mm after each reversal. No named effect describes it; digressive
+    # damping + a hysteretic spring fitted least badly (held-out NRMSE 0.226, the linear
+    # model's 0.331) and were named first, the rest `unexplained` (session 48). A force
+    # that remembers each reversal, with no name, predicts it far better (0.104, t = 11)
+    # and is now the first finding, its shape the damping missing after each reversal
+    _, out = _diagnose(1795986074, "damper_free_play")
+    first = out["findings"][0]
+    assert first["effect"] == "unexplained", [f["effect"] for f in out["findings"]]
+    assert first["force_surface"]["form"] == "memory_of_reversals"
+    assert first["force_surface"]["nrmse_validation"] < 0.15
+    assert first["held_out_gain"] >= 0.8
+    words = first["shape_description"][0]
+    assert "damping" in words and "after each reversal" in words and "free play" in words
+    # the memory travel is a few mm, the play's scale
+    assert 1e-3 <= first["force_surface"]["memory_travel_m"] <= 6e-3

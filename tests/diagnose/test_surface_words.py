@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fielddiag.diagnose.surface_words import describe_force_surface
+from fielddiag.diagnose.surface_words import describe_force_surface, describe_memory_surface
 from fielddiag.effects.force_surface import ForceSurface
 
 R = np.linspace(-0.03, 0.03, 201)
@@ -50,3 +50,31 @@ def test_the_surface_force_is_the_sum_of_its_terms():
     np.testing.assert_allclose(e.force(r, v, np.zeros(2), e.value_vector())[0], expect,
                                rtol=1e-12)
     assert not ForceSurface.names_physics and not ForceSurface.diagnosable
+
+
+@pytest.mark.parametrize("coefficients, damping, words", [
+    # a_speed 300 N at 0.2 m/s: +-1500 N s/m about the mean damping 2000 -> 500 just after a
+    # reversal, 3500 later: 86 % of it (3000 N s/m) weaker; 3 memory travels = 6 mm
+    ({"memory_loop_speed_n": 300.0, "memory_travel_m": 2e-3}, 2000.0,
+     "the damping is 86 % (3e+03 N s/m) weaker for about the first 6 mm after each reversal "
+     "of the motion than later in the stroke: as free play in the damper's mounting"),
+    # more than the mean damping: none left after a reversal
+    ({"memory_loop_speed_n": 500.0, "memory_travel_m": 1e-3}, 2000.0,
+     "the damping all but vanishes for about the first 3 mm after each reversal of the "
+     "motion (it is 5e+03 N s/m lower there than later in the stroke)"),
+    ({"memory_loop_speed_n": -100.0, "memory_travel_m": 2e-3}, None,
+     "the damping is 1e+03 N s/m stronger for about the first 6 mm"),
+    # a loop 2 x 40 N high; travel amplitude sqrt(2) x std(R) = 24.62 mm: 4 x 40 N x 24.62 mm
+    ({"memory_loop_n": 40.0, "memory_travel_m": 1e-3}, None,
+     "a hysteresis loop 80 N high that closes over about 3 mm after each reversal (3.94 J "
+     "per cycle of +-25 mm)"),
+    ({"memory_loop_travel_n": -25.0, "memory_travel_m": 1e-3}, None,
+     "50 N higher per 20 mm toward compression"),
+])
+def test_a_force_with_memory_is_told_by_its_terms(coefficients, damping, words):
+    told = describe_memory_surface(coefficients, R, V, damping=damping)
+    assert len(told) == 1 and words in told[0], told
+
+
+def test_a_memory_with_no_force_says_nothing():
+    assert describe_memory_surface({"memory_travel_m": 2e-3}, R, V) == []

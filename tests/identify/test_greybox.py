@@ -129,7 +129,11 @@ def test_sensitivities_are_the_derivative_of_the_simulation() -> None:
     (("hysteretic_spring", {"hysteretic_stiffness_n_per_m": 3e4, "yield_displacement_m": 3e-3}),
      ("dahl_friction", {"friction_force_n": 40.0, "friction_gradient_n_per_m": 500.0,
                         "yield_displacement_m": 5e-4})),
-], ids=["bouc_wen+top_mount", "dahl+dahl_friction"])
+    (("memory_surface", {"memory_loop_n": 30.0, "memory_loop_speed_n": 150.0,
+                         "memory_loop_travel_n": -20.0, "memory_travel_m": 2e-3}),
+     ("series_top_mount", {"suspension_damping_ns_per_m": 1800.0,
+                           "mount_stiffness_n_per_m": 6e4})),
+], ids=["bouc_wen+top_mount", "dahl+dahl_friction", "memory_surface+top_mount"])
 def test_stateful_sensitivities_are_the_derivative_of_the_simulation(effects, monkeypatch
                                                                       ) -> None:
     """Models with internal states: the Jacobian from the states' sensitivity equations ==
