@@ -132,7 +132,7 @@ def describe_memory_surface(coefficients: Mapping[str, float], r_m: np.ndarray,
     >>> describe_memory_surface({"loop_speed": 300.0, "memory_travel_m": 0.002},
     ...                         np.array([0.02, -0.02]), np.array([0.2, -0.2]),
     ...                         damping=2000.0)  # doctest: +ELLIPSIS
-    ["the damping is 86 % (3e+03 N s/m) weaker for about the first 6 mm after each reversal..."]
+    ["the damping is 86 % weaker for about the first 2 mm after each reversal of the motion (500..."]
     """
     vals = {k.removeprefix("memory_").removesuffix("_n").removesuffix("_m"): v
             for k, v in coefficients.items()}
@@ -149,7 +149,9 @@ def describe_memory_surface(coefficients: Mapping[str, float], r_m: np.ndarray,
         return []
     top = max(v for _, v in rms.values())
     told = sorted((t for t in rms if rms[t][1] >= TOLD_SHARE * top), key=lambda t: -rms[t][1])
-    reach_mm = 3e3 * z_m  # the state within 10 % of its new side after ~3 memory travels
+    # after a reversal the memory's share left of the old side decays as exp(-travel / z_m):
+    # summed over the travel, a force lost (or added) in full over the first z_m
+    reach_mm = 1e3 * z_m
     amplitude_m = float(np.sqrt(2.0) * np.std(r_m)) if np.size(r_m) else 0.0
     out = []
     for t in told:
@@ -160,13 +162,16 @@ def describe_memory_surface(coefficients: Mapping[str, float], r_m: np.ndarray,
                      if damping is not None and damping + dc > 0 and a > 0 else None)
             if a > 0:
                 first = f"for about the first {reach_mm:.2g} mm after each reversal of the motion"
-                if share is not None and share >= 0.9:
-                    how = (f"the damping all but vanishes {first} (it is {2 * dc:.3g} {unit} "
-                           "s/m lower there than later in the stroke)")
+                if share is None:
+                    how = (f"the damping is {2 * dc:.3g} {unit} s/m weaker {first} than later "
+                           "in the stroke")
+                elif share >= 0.9:
+                    how = (f"the damping all but vanishes {first} ({damping + dc:.3g} {unit} "
+                           "s/m later in the stroke)")
                 else:
-                    size = (f"{100 * share:.0f} % ({2 * dc:.3g} {unit} s/m)"
-                            if share is not None else f"{2 * dc:.3g} {unit} s/m")
-                    how = f"the damping is {size} weaker {first} than later in the stroke"
+                    how = (f"the damping is {100 * share:.0f} % weaker {first} "
+                           f"({damping - dc:.3g} against {damping + dc:.3g} {unit} s/m later "
+                           "in the stroke)")
                 out.append(f"{how}: as free play in the damper's mounting, or a damper slow "
                            "to build pressure, would make it")
             else:

@@ -51,7 +51,7 @@ def plot_worst_windows(diag, path: str | os.PathLike) -> Path:
             ta, ma, sa = aug_runs[lab]
             sel_a = (ta >= w["start_s"]) & (ta <= w["end_s"])
             name = (" + ".join(diag.described.effects).replace("force_surface", "force surface")
-                    .replace("memory_surface", "force with memory"))
+                    .replace("memory_surface", "a force remembering reversals"))
             ax.plot(ta[sel_a], sa[sel_a], color="tab:green", lw=1.0, ls="--", label=f"with {name}")
             rax.plot(ta[sel_a], (ma - sa)[sel_a], color="tab:green", lw=1.0, ls="--",
                      label=f"with {name}")

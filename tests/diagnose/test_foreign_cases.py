@@ -148,5 +148,23 @@ def test_free_play_is_told_as_a_force_with_memory_of_each_reversal():
     assert first["held_out_gain"] >= 0.8
     words = first["shape_description"][0]
     assert "damping" in words and "after each reversal" in words and "free play" in words
-    # the memory travel is a few mm, the play's scale
+    # the memory travel (the travel over which the damping is lost, in sum) is a few mm
     assert 1e-3 <= first["force_surface"]["memory_travel_m"] <= 6e-3
+
+
+@pytest.mark.timeout(600)
+def test_free_play_read_as_a_late_channel_beside_names_is_the_shapes_lag():
+    # the independent simulator's seed 1796009222 (free play, 6x): a body channel 4.36 ms
+    # late was chosen beside a digressive damper and a top mount (the free play lags each
+    # stroke). The force with memory of each reversal predicts better than those names on
+    # the drives as recorded (t = 16.7) and no better with the delay corrected: the delay
+    # is the names' misfit, not the channels'. No late channel is reported, the shape first
+    _, out = _diagnose(1796009222, "damper_free_play")
+    kinds = [d["kind"] for d in out.get("data_problems", [])]
+    assert "channel_time_offset" not in kinds, kinds
+    assert out["findings"][0]["effect"] == "unexplained"
+    assert out["findings"][0]["force_surface"]["form"] == "memory_of_reversals"
+    (note,) = [w["message"] for w in out["warnings"] if w["kind"] == "lag_of_the_suspension"]
+    assert "a force with memory of each reversal predicts held-out data as well without it" \
+        in note
+    assert out["augmented"]["nrmse_validation"] < 0.25 < out["baseline"]["nrmse_validation"]
