@@ -132,7 +132,7 @@ def describe_memory_surface(coefficients: Mapping[str, float], r_m: np.ndarray,
     >>> describe_memory_surface({"loop_speed": 300.0, "memory_travel_m": 0.002},
     ...                         np.array([0.02, -0.02]), np.array([0.2, -0.2]),
     ...                         damping=2000.0)  # doctest: +ELLIPSIS
-    ["the damping is 86 % weaker for about the first 2 mm after each reversal of the motion (500..."]
+    ["the damping is 86 % weaker for about the first 2 mm after each reversal of the motion..."]
     """
     vals = {k.removeprefix("memory_").removesuffix("_n").removesuffix("_m"): v
             for k, v in coefficients.items()}
