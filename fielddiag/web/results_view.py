@@ -444,8 +444,13 @@ def _finding_card(f: Mapping[str, Any]) -> None:
                     ui.label(f"• {line}").classes("text-sm")
             gain = f.get("held_out_gain")
             if isinstance(gain, int | float):
-                what = ("the force surface predicts {:.0f} % of the linear model's held-out "
-                        "misfit" if isinstance(f.get("force_surface"), Mapping) else
+                surface = f.get("force_surface")
+                shape_name = ("the force with memory of each reversal"
+                              if isinstance(surface, Mapping)
+                              and surface.get("form") == "memory_of_reversals"
+                              else "the force surface")
+                what = (shape_name + " predicts {:.0f} % of the linear model's held-out "
+                        "misfit" if isinstance(surface, Mapping) else
                         "a smooth model of this shape predicts {:.0f} % of the force left on "
                         "held-out data")
                 ui.label(what.format(100 * gain)).classes("text-xs text-gray-600")
