@@ -2633,10 +2633,10 @@ def _diagnose(
         # against the physics, against the linear model as recorded)
         lin = next((f for f in fits if not f.physics and f.data is chosen.data), None)
         recorded_win = surface_wins
-        say("fitting the force surface to the drives corrected for the "
-            f"{_DATA_LABEL[chosen.data.kind]}")
         # the form of surface that predicted best on the drives as recorded
         form = surface_fit.physics if surface_fit is not None else (SURFACE,)
+        say(f"fitting {'the force with memory' if MEMORY_SURFACE in form else 'the force surface'}"
+            f" to the drives corrected for the {_DATA_LABEL[chosen.data.kind]}")
         try:
             corrected = _grey_fit(form, chosen.prepared, coupling,
                                   _initial_from(surface_fit if form != (SURFACE,) or lin is None
@@ -2653,15 +2653,14 @@ def _diagnose(
                          .beats(1, everywhere=True))):
             # a late channel competes with the shape as it does with named physics: where
             # the shape, which predicted better than the names on the drives as recorded,
-            # predicts no better with the delay corrected, the delay is the misfit of what
-            # the names leave (free play lags a stroke like a late channel: the independent
-            # simulator's seed 1796009222, +4.4 ms told beside a digressive damper and a
-            # top mount; the shape predicts alike with and without it)
-            # the shape as recorded against the names with the delay corrected, as two
-            # explanations are told apart (a shape with memory can mimic a late channel:
-            # seed 1796009857, a linear car's 1.1 ms late wheel channel read as "the damping
-            # is 1.76e+03 N s/m stronger for the first 0.61 mm after each reversal", t = -27
-            # against the delay's correction), then against the names without it
+            # predicts no better with the delay corrected, and predicts better without it
+            # than the names with it (as two explanations are told apart), the delay is the
+            # misfit of what the names leave. Free play lags a stroke like a late channel
+            # (the independent simulator's seed 1796009222: +4.4 ms told beside a digressive
+            # damper and a top mount); a shape with a fraction of a millimetre of memory
+            # mimics a late channel too (seed 1796009857: a linear car's 1.1 ms late wheel
+            # channel read as "the damping is 1.76e+03 N s/m stronger for the first 0.61 mm
+            # after each reversal", t = -27 against the delay's correction)
             against = (_surface_wins(surface_fit, without, base, say)
                        if _surface_wins(surface_fit, chosen, base, lambda _m: None) is not None
                        else None)
