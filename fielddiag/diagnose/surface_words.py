@@ -90,16 +90,25 @@ def describe_force_surface(coefficients: Mapping[str, float], r_m: np.ndarray,
     w = np.asarray(rdot_mps, float) / SURFACE_SPEED_MPS
     basis = {"travel2": q * q, "travel_speed": q * w, "speed2": w * w, "travel3": q**3,
              "travel2_speed": q * q * w, "travel_speed2": q * w * w, "speed3": w**3}
+    terms = {key.removeprefix("surface_").removesuffix("_n"): a
+             for key, a in coefficients.items()}
+    return [_words(t, a, unit) for t, a in _strongest(terms, basis)]
+
+
+def _strongest(coefficients: Mapping[str, float], basis: Mapping[str, np.ndarray]
+               ) -> list[tuple[str, float]]:
+    """``(term, coefficient)`` of the terms of ``basis`` whose rms force over the recorded
+    states is at least :data:`TOLD_SHARE` of the strongest's, strongest first."""
     rms = {}
-    for key, a in coefficients.items():
-        term = key.removeprefix("surface_").removesuffix("_n")
-        if term in basis and np.isfinite(a) and a != 0.0:
-            rms[term] = (a, float(np.sqrt(np.mean((a * basis[term]) ** 2))))
+    for term, phi in basis.items():
+        a = float(coefficients.get(term, 0.0))
+        if np.isfinite(a) and a != 0.0 and np.size(phi):
+            rms[term] = (a, float(np.sqrt(np.mean((a * phi) ** 2))))
     if not rms:
         return []
     top = max(v for _, v in rms.values())
-    told = sorted((t for t in rms if rms[t][1] >= TOLD_SHARE * top), key=lambda t: -rms[t][1])
-    return [_words(t, rms[t][0], unit) for t in told]
+    return [(t, rms[t][0]) for t in sorted((t for t in rms if rms[t][1] >= TOLD_SHARE * top),
+                                           key=lambda t: -rms[t][1])]
 
 
 def describe_memory_surface(coefficients: Mapping[str, float], r_m: np.ndarray,
@@ -140,22 +149,13 @@ def describe_memory_surface(coefficients: Mapping[str, float], r_m: np.ndarray,
     q = np.asarray(r_m, float) / SURFACE_TRAVEL_M
     w = np.asarray(rdot_mps, float) / SURFACE_SPEED_MPS
     basis = {"loop": np.ones_like(q), "loop_speed": np.abs(w), "loop_travel": q}
-    rms = {}
-    for term, phi in basis.items():
-        a = float(vals.get(term, 0.0))
-        if np.isfinite(a) and a != 0.0 and phi.size:
-            rms[term] = (a, float(np.sqrt(np.mean((a * phi) ** 2))))
-    if not rms or not np.isfinite(z_m):
-        return []
-    top = max(v for _, v in rms.values())
-    told = sorted((t for t in rms if rms[t][1] >= TOLD_SHARE * top), key=lambda t: -rms[t][1])
+    told = _strongest(vals, basis) if np.isfinite(z_m) else []
     # after a reversal the memory's share left of the old side decays as exp(-travel / z_m):
     # summed over the travel, a force lost (or added) in full over the first z_m
     reach_mm = 1e3 * z_m
     amplitude_m = float(np.sqrt(2.0) * np.std(r_m)) if np.size(r_m) else 0.0
     out = []
-    for t in told:
-        a = rms[t][0]
+    for t, a in told:
         if t == "loop_speed":
             dc = abs(a) / SURFACE_SPEED_MPS  # each way from the mean damping
             share = (min(2 * dc / (damping + dc), 1.0)

@@ -32,6 +32,24 @@ def _hysteretic_spring_partials(r, rd, x2, z, p, c, dfz, dgs, dgz, dgp):  # prag
     dgp[0, 1] = abs(rd) * z[0] / (p[1] * p[1])
 
 
+def loading_state_m(r_m: float, yield_m: float) -> float:
+    """The Dahl state reached when loaded slowly and monotonically from 0 to ``r_m``:
+    ``sign(r) z_y (1 - exp(-|r| / z_y))`` [m] (``dz/dr = 1 - z / z_y``).
+
+    Parameters
+    ----------
+    r_m : float
+        Suspension extension [m].
+    yield_m : float
+        The yield (memory) travel ``z_y`` [m].
+
+    Returns
+    -------
+    float
+    """
+    return math.copysign(yield_m * -math.expm1(-abs(r_m) / yield_m), r_m)
+
+
 def yield_travel_start_m(r_m: np.ndarray) -> float:
     """Start value of a hysteresis's yield travel [m]: 5 % of the travel's spread, 0.2-10 mm.
 
@@ -92,8 +110,7 @@ class HystereticSpring(Effect):
         numpy.ndarray
             ``(1,)``: ``sign(r) z_y (1 - exp(-|r| / z_y))`` [m].
         """
-        z_y = values[1]
-        return np.array([math.copysign(z_y * -math.expm1(-abs(r) / z_y), r)])
+        return np.array([loading_state_m(r, values[1])])
 
     def speed_bounds(self, values: Sequence[float]) -> tuple[float, float, float]:
         """Largest stiffness [N/m], damping [N s/m] and rate [1/s] the hysteretic spring can add.

@@ -16,7 +16,7 @@ from fielddiag.effects.base import (
     register_effect,
 )
 from fielddiag.effects.force_surface import SURFACE_SPEED_MPS, SURFACE_TRAVEL_M
-from fielddiag.effects.hysteretic_spring import yield_travel_start_m
+from fielddiag.effects.hysteretic_spring import loading_state_m, yield_travel_start_m
 
 
 @njit(cache=True, nogil=True)
@@ -106,8 +106,7 @@ class MemorySurface(Effect):
         numpy.ndarray
             ``(1,)``: ``sign(r) z_m (1 - exp(-|r| / z_m))`` [m].
         """
-        z_m = values[3]
-        return np.array([np.copysign(z_m * -np.expm1(-abs(r) / z_m), r)])
+        return np.array([loading_state_m(r, values[3])])
 
     def speed_bounds(self, values: Sequence[float]) -> tuple[float, float, float]:
         """Largest stiffness [N/m], damping [N s/m] and rate [1/s] the surface can add.
