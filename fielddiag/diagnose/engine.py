@@ -2186,7 +2186,11 @@ def _diagnose(
         say(f"  against {' + '.join(phys)} alone t = {vs_mount.t:.1f}, against the delay "
             f"alone t = {vs_delay.t:.1f}" + ("" if told else ": not told from either"))
         if not told:
-            if vs_mount.beats(1, everywhere=True) and vs_delay.t > 0.0:
+            if (vs_mount.beats(1, everywhere=True) and vs_delay.t >= MIN_T_SIGNIFICANT
+                    and vs_delay.gain() >= MIN_GAIN_PER_PARAM):
+                # better than the delay alone by what a parameter must earn, short of
+                # significance: told beside the delay (not where it merely ties, t = 0.0
+                # and 1.2 % on seed 1796022340, no mount: the delay is then reported)
                 unsettled.append((delay_alone, fit, refined, vs_delay))
             return None
         # a late channel is late by the same in the quiet and the lively stretches; what
@@ -3105,7 +3109,8 @@ def _unsettled_share(chosen: _Fit,
     """Words telling that a top mount beside a smaller late channel predicted the held-out
     data better than the chosen delay alone, by less than a finding must (``unsettled``:
     from the profile of the mount's fit over the delay); None where no such share was
-    found beside the chosen model.
+    found beside the chosen model (better by :data:`MIN_GAIN_PER_PARAM` and at least
+    :data:`MIN_T_SIGNIFICANT` standard errors).
 
     A mount's lag and a late body channel's add up; where the data tell their sum but
     not its split, the simpler model is kept and the other told: a 1.2 ms mount beside a
