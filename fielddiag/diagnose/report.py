@@ -74,6 +74,16 @@ def _fmt_model(model: dict, stds: dict | None = None) -> str:
     return ", ".join(parts)
 
 
+def adequate_words(out: dict) -> str:
+    """What an ``adequate`` verdict says: no missing physics, unless a data problem the
+    findings assume ties with physics that looks like it (a ``data_problem_or_physics``
+    warning), where the physics is not ruled out."""
+    if any(w.get("kind") == "data_problem_or_physics" for w in out.get("warnings", [])):
+        return ("the linear model is adequate on the drives corrected for a data problem; "
+                "physics that looks like that problem is not ruled out (see the warnings)")
+    return "the linear model is adequate (no missing physics found)"
+
+
 def format_summary(out: dict) -> str:
     """Readable text of a diagnosis dict (vehicle or rig mode).
 
@@ -93,7 +103,7 @@ def format_summary(out: dict) -> str:
     mode = out.get("mode", "vehicle")
     head = "rig test" if mode == "rig" else "suspension"
     if out["verdict"] == "adequate":
-        lines.append(f"{head}: the linear model is adequate (no missing physics found)")
+        lines.append(f"{head}: {adequate_words(out)}")
     elif out["verdict"] == "inconclusive":
         lines.append(f"{head}: INCONCLUSIVE (no missing physics found, and the recording "
                      "cannot show whether the linear model is adequate)")

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 from nicegui import ui
 
+from fielddiag.diagnose.report import adequate_words
 from fielddiag.dsp import spectrum_on_grid
 from fielddiag.web.charts import (
     heatmap_options,
@@ -587,7 +588,7 @@ def render_diagnosis(result: Mapping[str, Any], recording_view=None) -> None:
     elif verdict:
         missing = verdict != "adequate"
         ui.label("Missing physics found" if missing else
-                 "The linear model is adequate: no missing physics found").classes(
+                 adequate_words(result).capitalize()).classes(
             "text-lg font-semibold " + ("text-negative" if missing else "text-positive")).mark(
             "diagnosis-verdict")
     warning_labels(result, "diagnosis-warning")
